@@ -1,0 +1,471 @@
+//! The batch engine: one result row per input tightening, in input order, computed in parallel.
+
+use std::sync::Arc;
+
+use arrow_array::{Array, ArrayRef, BooleanArray, Float64Array, Int64Array, RecordBatch, StringArray};
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+use arrow_select::concat::concat_batches;
+use rayon::prelude::*;
+
+use crate::cusum::{cusum_threshold, CusumSide, TwoSidedCusum};
+use crate::error::{Result, TightscanError};
+use crate::input::{to_nested, ChannelRow, Sample, Samples, TighteningTable};
+use crate::schema::{self, Layout, RESULT_COLUMNS, TIGHTENING_ID};
+use crate::signal::{
+    block_count, block_stats, elastic_window, stop_ranges, BlockConfig, Blocks, ElasticZoneConfig, PooledFit,
+    WindowError,
+};
+use crate::status::TighteningStatus;
+
+/// Two-sided CUSUM settings, in sigma units of the standardised block torque rate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CusumConfig {
+    /// Drift (reference value); kappa = delta/2 is optimal for a shift of delta sigma.
+    pub kappa: f64,
+    /// In-control average run length, in blocks, that sets the threshold (Siegmund).
+    pub arl0: f64,
+    /// Explicit threshold h; overrides `arl0` when set.
+    pub threshold: Option<f64>,
+}
+
+impl Default for CusumConfig {
+    fn default() -> Self {
+        // With at most 40 blocks a window (30 monitored), ARL0 = 3,000 blocks keeps the false
+        // alarms per tightening at or below about 1 % (P(RL <= 30) <= 30 / 3000).
+        Self { kappa: 0.5, arl0: 3000.0, threshold: None }
+    }
+}
+
+/// Everything `detect` needs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DetectConfig {
+    /// Elastic window finder.
+    pub zone: ElasticZoneConfig,
+    /// Blocks and training window.
+    pub blocks: BlockConfig,
+    /// CUSUM.
+    pub cusum: CusumConfig,
+}
+
+/// Chi-square quantile by Wilson and Hilferty (1931): k (1 - 2/(9k) + z sqrt(2/(9k)))^3.
+fn chi_square_quantile(k: f64, z: f64) -> f64 {
+    let c = 2.0 / (9.0 * k);
+    k * (1.0 - c + z * c.sqrt()).powi(3)
+}
+
+/// Standard normal quantile at 0.999: the dispersion pre-test fires for white noise once in a
+/// thousand tightenings, so it barely moves the size.
+const Z_0999: f64 = 3.090_232_306;
+
+/// Result of one tightening.
+#[derive(Clone, Debug)]
+struct RowResult {
+    status: TighteningStatus,
+    n_samples: usize,
+    window: Option<(f64, f64)>,
+    torque_rate: Option<f64>,
+    cusum: Option<CusumRow>,
+}
+
+#[derive(Clone, Debug)]
+struct CusumRow {
+    alarm: Option<CusumAlarmRow>,
+    max_statistic: f64,
+    threshold: f64,
+    reference_rate: f64,
+    noise_sd: f64,
+    dispersion: f64,
+    blocks: usize,
+    block_angle: f64,
+}
+
+#[derive(Clone, Debug)]
+struct CusumAlarmRow {
+    alarm_index: usize,
+    alarm_angle: f64,
+    side: CusumSide,
+    change_index: usize,
+    change_angle: f64,
+}
+
+impl RowResult {
+    fn failed(status: TighteningStatus, n_samples: usize) -> Self {
+        Self { status, n_samples, window: None, torque_rate: None, cusum: None }
+    }
+    fn alarm(&self) -> Option<&CusumAlarmRow> {
+        self.cusum.as_ref().and_then(|c| c.alarm.as_ref())
+    }
+}
+
+/// Per-worker scratch space, reused across tightenings.
+#[derive(Default)]
+struct Scratch {
+    blocks: Blocks,
+    z: Vec<f64>,
+    usable: Vec<usize>,
+    residuals: Vec<f64>,
+    stops: Vec<(f64, f64)>,
+}
+
+/// Validated configuration plus the threshold it implies.
+#[derive(Clone, Debug)]
+pub struct Detector {
+    config: DetectConfig,
+    threshold: f64,
+}
+
+impl Detector {
+    /// Validates `config` and derives the CUSUM threshold.
+    pub fn new(config: DetectConfig) -> Result<Self> {
+        config.zone.validate()?;
+        config.blocks.validate()?;
+        let c = &config.cusum;
+        if !(c.kappa.is_finite() && c.kappa >= 0.0) {
+            return Err(TightscanError::parameter("kappa", format!("must be >= 0, got {}", c.kappa)));
+        }
+        let threshold = match c.threshold {
+            Some(h) if h.is_finite() && h > 0.0 => h,
+            Some(h) => return Err(TightscanError::parameter("threshold", format!("must be > 0, got {h}"))),
+            None => cusum_threshold(c.arl0, c.kappa, true)?,
+        };
+        Ok(Self { config, threshold })
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &DetectConfig {
+        &self.config
+    }
+
+    /// CUSUM threshold h in sigma units.
+    pub fn threshold(&self) -> f64 {
+        self.threshold
+    }
+
+    /// Schema of the results for an input schema.
+    pub fn result_schema(&self, input: &Schema, passthrough: &[String]) -> Result<SchemaRef> {
+        schema::detect_layout(input)?;
+        let id = match input.field_with_name(TIGHTENING_ID) {
+            Ok(f) => f.clone(),
+            Err(_) => Field::new(TIGHTENING_ID, DataType::Int64, false),
+        };
+        let pass = passthrough_fields(input, passthrough)?;
+        Ok(schema::result_schema(id, &pass))
+    }
+
+    /// Analyses every tightening of `batch` (nested or long layout). `first_row` numbers the
+    /// rows when the table has no `tightening_id` (row numbers continue across batches).
+    pub fn detect(&self, batch: &RecordBatch, passthrough: &[String], first_row: i64) -> Result<RecordBatch> {
+        let input_schema = batch.schema();
+        let layout = schema::detect_layout(&input_schema)?;
+        let out_schema = self.result_schema(&input_schema, passthrough)?;
+        let nested = to_nested(batch, passthrough)?;
+        let table = TighteningTable::new(&nested)?;
+        let ids: ArrayRef = match nested.column_by_name(TIGHTENING_ID) {
+            Some(ids) => ids.clone(),
+            None => Arc::new(Int64Array::from_iter_values(first_row..first_row + nested.num_rows() as i64)),
+        };
+        // In the long layout a null id gathers samples of unknown tightenings: not a curve.
+        let null_id_row = |i: usize| layout == Layout::Long && ids.is_null(i);
+
+        let rows: Vec<RowResult> = (0..table.n_rows)
+            .into_par_iter()
+            .with_min_len(16)
+            .map_init(Scratch::default, |scratch, i| {
+                if null_id_row(i) {
+                    return RowResult::failed(TighteningStatus::NullTightening, 0);
+                }
+                self.analyse_row(&table, i, scratch)
+            })
+            .collect();
+
+        let mut columns: Vec<ArrayRef> = Vec::with_capacity(out_schema.fields().len());
+        columns.push(ids);
+        columns.extend(build_columns(&rows));
+        for name in passthrough {
+            let col = nested
+                .column_by_name(name)
+                .ok_or_else(|| TightscanError::schema(name.as_str(), "pass-through column is missing"))?;
+            columns.push(col.clone());
+        }
+        Ok(RecordBatch::try_new(out_schema, columns)?)
+    }
+
+    /// Analyses a whole table given as batches. A long-layout table is concatenated first, so
+    /// that a tightening whose samples span batches still gives exactly one row.
+    pub fn detect_all(
+        &self,
+        input_schema: &SchemaRef,
+        batches: &[RecordBatch],
+        passthrough: &[String],
+        first_row: i64,
+    ) -> Result<Vec<RecordBatch>> {
+        if schema::detect_layout(input_schema)? == Layout::Long && batches.len() > 1 {
+            let all = concat_batches(input_schema, batches)?;
+            return Ok(vec![self.detect(&all, passthrough, first_row)?]);
+        }
+        let mut row = first_row;
+        batches
+            .iter()
+            .map(|b| {
+                let out = self.detect(b, passthrough, row);
+                row += b.num_rows() as i64;
+                out
+            })
+            .collect()
+    }
+
+    fn analyse_row(&self, table: &TighteningTable<'_>, i: usize, scratch: &mut Scratch) -> RowResult {
+        let (angle, torque) = match (table.angle.row(i), table.torque.row(i)) {
+            (ChannelRow::Present { samples: a, .. }, ChannelRow::Present { samples: t, .. }) => (a, t),
+            _ => return RowResult::failed(TighteningStatus::NullTightening, 0),
+        };
+        let n = angle.len();
+        let channels = [&table.angle, &table.torque].into_iter().chain(table.optional.iter());
+        // Checks run in a fixed order (lengths, nulls, non-finite) so the status names the
+        // first problem a person would have to fix.
+        let mut rows = Vec::with_capacity(5);
+        for c in channels {
+            match c.row(i) {
+                ChannelRow::Null => {
+                    // A missing optional channel is not an error; a null required one is.
+                    if c.name == schema::ANGLE || c.name == schema::TORQUE {
+                        return RowResult::failed(TighteningStatus::NullTightening, 0);
+                    }
+                }
+                ChannelRow::Present { samples, null_count } => rows.push((c.name, samples, null_count)),
+            }
+        }
+        for &(name, s, _) in &rows {
+            if s.len() != n {
+                return RowResult::failed(
+                    TighteningStatus::LengthMismatch { channel: name, len: s.len(), expected: n },
+                    n,
+                );
+            }
+        }
+        if n == 0 {
+            return RowResult::failed(TighteningStatus::Empty, 0);
+        }
+        for &(name, _, nulls) in &rows {
+            if nulls > 0 {
+                return RowResult::failed(TighteningStatus::NullValues { channel: name, count: nulls }, n);
+            }
+        }
+        for &(name, s, _) in &rows {
+            let bad = s.non_finite_count();
+            if bad > 0 {
+                return RowResult::failed(TighteningStatus::NonFinite { channel: name, count: bad }, n);
+            }
+        }
+        if n < self.config.zone.min_samples {
+            return RowResult::failed(
+                TighteningStatus::TooShort { samples: n, minimum: self.config.zone.min_samples, what: "curve" },
+                n,
+            );
+        }
+        match (angle, torque) {
+            (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, scratch),
+            (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, scratch),
+            (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, scratch),
+            (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, scratch),
+        }
+    }
+
+    /// Elastic window, block torque rates, standardisation, CUSUM.
+    fn analyse_curve<A: Sample, T: Sample>(&self, angle: &[A], torque: &[T], s: &mut Scratch) -> RowResult {
+        let n = angle.len();
+        let cfg = &self.config;
+        let first = angle[0].to_f64();
+        if angle.iter().all(|a| a.to_f64() == first) {
+            return RowResult::failed(TighteningStatus::FlatSignal { channel: schema::ANGLE }, n);
+        }
+        let window = match elastic_window(angle, torque, &cfg.zone) {
+            Ok(w) => w,
+            Err(WindowError::FlatTorque) => {
+                return RowResult::failed(TighteningStatus::FlatSignal { channel: schema::TORQUE }, n)
+            }
+            Err(WindowError::TooShort(len)) => {
+                return RowResult::failed(
+                    TighteningStatus::TooShort { samples: len, minimum: cfg.zone.min_samples, what: "elastic window" },
+                    n,
+                )
+            }
+            Err(WindowError::AngleStuck) => {
+                return RowResult::failed(
+                    TighteningStatus::NoElasticZone { reason: "angle does not advance while torque rises" },
+                    n,
+                )
+            }
+        };
+        let len = window.end - window.start;
+        let n_blocks = block_count(len, &cfg.blocks);
+        let needed_blocks = cfg.blocks.min_training_blocks + 2;
+        if n_blocks < needed_blocks {
+            return RowResult::failed(
+                TighteningStatus::TooShort {
+                    samples: len,
+                    minimum: needed_blocks * cfg.blocks.min_block_samples,
+                    what: "elastic window",
+                },
+                n,
+            );
+        }
+        block_stats(angle, torque, window, n_blocks, &mut s.blocks);
+        stop_ranges(angle, torque, window, &mut s.stops);
+        let blocks = &s.blocks;
+        let stops = &s.stops;
+        let width = blocks.width;
+        let touches_stop = |b: usize| {
+            let (lo, hi) = (b as f64 * width, (b + 1) as f64 * width);
+            stops.iter().any(|&(s0, s1)| s0 < hi && s1 >= lo)
+        };
+        s.usable.clear();
+        s.usable.extend((0..n_blocks).filter(|&b| blocks.usable(b) && !touches_stop(b)));
+        let n_train = ((cfg.blocks.training_fraction * s.usable.len() as f64).ceil() as usize)
+            .max(cfg.blocks.min_training_blocks);
+        if s.usable.len() < n_train + 2 {
+            return RowResult::failed(
+                TighteningStatus::NoElasticZone { reason: "too few blocks with an angle spread in the window" },
+                n,
+            );
+        }
+        let window_angles = (angle[window.start].to_f64(), angle[window.end - 1].to_f64());
+        let mut whole = PooledFit::default();
+        s.usable.iter().for_each(|&b| whole.add(&blocks.stats[b]));
+        let torque_rate = whole.slope();
+
+        // Reference rate: pooled slope of the training blocks. Its variance is about 1/B^3 of
+        // one block's (B training blocks), so it adds next to nothing to the monitored z's.
+        let (train, monitor) = s.usable.split_at(n_train);
+        let mut pooled = PooledFit::default();
+        train.iter().for_each(|&b| pooled.add(&blocks.stats[b]));
+        let reference_rate = pooled.slope();
+
+        // Noise scale from every usable block's residuals about its own line. A change of
+        // friction changes the slope between blocks, not the scatter within one, so monitored
+        // blocks inform the scale too: about four times the training data, which matters because
+        // a scale estimated from ~100 samples alone inflates the false alarms several-fold.
+        // A block whose residual variance exceeds 20x the median block's (an abrupt jump inside
+        // it, a spike) is left out. The cut is loose on purpose: with 3 df per block a cut at 4x
+        // drops 2 % of white-noise blocks, all from the upper tail, and biases the scale low;
+        // at 20x the loss is below 1e-8 (3 df) or 0.3 % (1 df).
+        s.residuals.clear();
+        s.residuals.extend(s.usable.iter().map(|&b| {
+            let st = &blocks.stats[b];
+            st.rss() / (st.n as f64 - 2.0).max(1.0)
+        }));
+        let mid = s.residuals.len() / 2;
+        let median_var = *s.residuals.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let (mut rss, mut df) = (0.0, 0.0);
+        for &b in s.usable.iter() {
+            let st = &blocks.stats[b];
+            let dof = (st.n as f64 - 2.0).max(1.0);
+            if st.rss() / dof <= 20.0 * median_var {
+                rss += st.rss();
+                df += dof;
+            }
+        }
+        let t0 = torque[window.start].to_f64();
+        let rise = torque.iter().fold(f64::NEG_INFINITY, |m, t| m.max(t.to_f64())) - t0;
+        // Floor for noise-free or coarsely quantised torque: 1e-6 of the rise.
+        let noise_sd = (rss / df.max(1.0)).sqrt().max(1e-6 * rise.abs().max(f64::MIN_POSITIVE));
+
+        // Standardised block rates: under white noise slope_b has variance sigma^2 / Sxx_b,
+        // so z_b = (slope_b - reference) sqrt(Sxx_b) / sigma ~ N(0, 1) with no change.
+        let z_of = |b: usize| (blocks.stats[b].slope() - reference_rate) * blocks.stats[b].sxx_c().sqrt() / noise_sd;
+        // Dispersion pre-test: sum of squared training z's against chi-square(B). Coloured noise
+        // (filters, vibration) makes block slopes vary more than white noise would; the scale is
+        // widened only when that excess is significant at 0.1 %.
+        let sum_z2: f64 = train.iter().map(|&b| z_of(b).powi(2)).sum();
+        let k = train.len() as f64;
+        let dispersion = (sum_z2 / k).sqrt();
+        let inflate = if sum_z2 > chi_square_quantile(k, Z_0999) { dispersion } else { 1.0 };
+
+        s.z.clear();
+        s.z.extend(monitor.iter().map(|&b| z_of(b) / inflate));
+        let mut cusum = TwoSidedCusum::new(cfg.cusum.kappa, self.threshold);
+        for &z in &s.z {
+            cusum.update(z);
+        }
+        let alarm = cusum.alarm().map(|a| {
+            let alarm_block = &blocks.stats[monitor[a.alarm_step]];
+            let change_block = &blocks.stats[monitor[a.change_step]];
+            CusumAlarmRow {
+                alarm_index: alarm_block.last,
+                alarm_angle: angle[alarm_block.last].to_f64(),
+                side: a.side,
+                change_index: change_block.first,
+                change_angle: angle[change_block.first].to_f64(),
+            }
+        });
+        RowResult {
+            status: TighteningStatus::Ok,
+            n_samples: n,
+            window: Some(window_angles),
+            torque_rate: Some(torque_rate),
+            cusum: Some(CusumRow {
+                alarm,
+                max_statistic: cusum.max_statistic(),
+                threshold: self.threshold,
+                reference_rate,
+                noise_sd: noise_sd * inflate,
+                dispersion,
+                blocks: monitor.len(),
+                block_angle: blocks.width,
+            }),
+        }
+    }
+}
+
+fn passthrough_fields(input: &Schema, passthrough: &[String]) -> Result<Vec<Field>> {
+    passthrough
+        .iter()
+        .map(|name| {
+            if name == TIGHTENING_ID || RESULT_COLUMNS.iter().any(|(r, ..)| r == name) {
+                return Err(TightscanError::schema(name.as_str(), "cannot pass through: the results have a column of that name"));
+            }
+            input
+                .field_with_name(name)
+                .cloned()
+                .map_err(|_| TightscanError::schema(name.as_str(), "pass-through column is missing"))
+        })
+        .collect()
+}
+
+/// Builds the result arrays in the order of [`RESULT_COLUMNS`] (a test checks the order).
+fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
+    let f = |get: fn(&RowResult) -> Option<f64>| -> ArrayRef {
+        Arc::new(rows.iter().map(get).collect::<Float64Array>())
+    };
+    let i = |get: fn(&RowResult) -> Option<i64>| -> ArrayRef {
+        Arc::new(rows.iter().map(get).collect::<Int64Array>())
+    };
+    let b = |get: fn(&RowResult) -> Option<bool>| -> ArrayRef {
+        Arc::new(rows.iter().map(get).collect::<BooleanArray>())
+    };
+    let status: ArrayRef = Arc::new(rows.iter().map(|r| Some(r.status.to_string())).collect::<StringArray>());
+    let side: ArrayRef = Arc::new(rows.iter().map(|r| r.alarm().map(|a| a.side.as_str())).collect::<StringArray>());
+    vec![
+        status,
+        i(|r| Some(r.n_samples as i64)),
+        b(|r| r.cusum.as_ref().map(|c| c.alarm.is_some())),
+        f(|r| r.alarm().map(|a| a.change_angle)),
+        i(|r| r.alarm().map(|a| a.change_index as i64)),
+        f(|r| r.window.map(|w| w.0)),
+        f(|r| r.window.map(|w| w.1)),
+        f(|r| r.torque_rate),
+        b(|r| r.cusum.as_ref().map(|c| c.alarm.is_some())),
+        i(|r| r.alarm().map(|a| a.alarm_index as i64)),
+        f(|r| r.alarm().map(|a| a.alarm_angle)),
+        side,
+        i(|r| r.alarm().map(|a| a.change_index as i64)),
+        f(|r| r.alarm().map(|a| a.change_angle)),
+        f(|r| r.cusum.as_ref().map(|c| c.max_statistic)),
+        f(|r| r.cusum.as_ref().map(|c| c.threshold)),
+        f(|r| r.cusum.as_ref().map(|c| c.reference_rate)),
+        f(|r| r.cusum.as_ref().map(|c| c.noise_sd)),
+        f(|r| r.cusum.as_ref().map(|c| c.dispersion)),
+        i(|r| r.cusum.as_ref().map(|c| c.blocks as i64)),
+        f(|r| r.cusum.as_ref().map(|c| c.block_angle)),
+    ]
+}

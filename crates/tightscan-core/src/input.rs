@@ -1,0 +1,382 @@
+//! Zero-copy views of the tightening table, and nesting of the long layout.
+//!
+//! A channel stays in the buffers Arrow (and so Python) handed over: a tightening is a pair of
+//! offsets into the channel's value buffer, read as `f32` or `f64` where it lies.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float32Type, Float64Type};
+use arrow_array::{
+    Array, ArrayRef, GenericListArray, LargeListArray, OffsetSizeTrait, RecordBatch, UInt32Array,
+};
+use arrow_buffer::{NullBuffer, OffsetBuffer, ScalarBuffer};
+use arrow_schema::{DataType, Field, Schema};
+use arrow_select::take::take;
+
+use crate::error::{Result, TightscanError};
+use crate::schema::{self, Layout, CHANNELS, TIGHTENING_ID};
+
+/// A number type a channel can hold.
+pub trait Sample: Copy + Send + Sync + 'static {
+    /// Widens to `f64` for arithmetic.
+    fn to_f64(self) -> f64;
+}
+impl Sample for f32 {
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+}
+impl Sample for f64 {
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        self
+    }
+}
+
+/// Samples of one channel of one tightening, borrowed from the Arrow buffer.
+#[derive(Clone, Copy, Debug)]
+pub enum Samples<'a> {
+    /// float32 channel.
+    F32(&'a [f32]),
+    /// float64 channel.
+    F64(&'a [f64]),
+}
+
+impl Samples<'_> {
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::F32(s) => s.len(),
+            Self::F64(s) => s.len(),
+        }
+    }
+    /// True when there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Count of NaN and infinite samples.
+    pub fn non_finite_count(&self) -> usize {
+        match self {
+            Self::F32(s) => s.iter().filter(|v| !v.is_finite()).count(),
+            Self::F64(s) => s.iter().filter(|v| !v.is_finite()).count(),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Offsets<'a> {
+    I32(&'a [i32]),
+    I64(&'a [i64]),
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Values<'a> {
+    F32(&'a [f32]),
+    F64(&'a [f64]),
+}
+
+/// One channel column of a nested batch.
+#[derive(Clone, Debug)]
+pub struct ChannelColumn<'a> {
+    /// Channel name.
+    pub name: &'static str,
+    offsets: Offsets<'a>,
+    list_nulls: Option<&'a NullBuffer>,
+    values: Values<'a>,
+    value_nulls: Option<&'a NullBuffer>,
+}
+
+/// One tightening's view of a channel.
+#[derive(Clone, Copy, Debug)]
+pub enum ChannelRow<'a> {
+    /// The list entry is null.
+    Null,
+    /// The samples, and how many of them are null.
+    Present {
+        /// The samples (null ones hold arbitrary values).
+        samples: Samples<'a>,
+        /// Null samples among them.
+        null_count: usize,
+    },
+}
+
+impl<'a> ChannelColumn<'a> {
+    fn from_array(name: &'static str, array: &'a dyn Array) -> Result<Self> {
+        match array.data_type() {
+            DataType::List(_) => Self::from_list(name, array.as_list::<i32>(), |o| Offsets::I32(o)),
+            DataType::LargeList(_) => Self::from_list(name, array.as_list::<i64>(), |o| Offsets::I64(o)),
+            other => Err(TightscanError::schema(name, format!("expected a list column, got {other}"))),
+        }
+    }
+
+    fn from_list<O: OffsetSizeTrait>(
+        name: &'static str,
+        list: &'a GenericListArray<O>,
+        wrap: impl Fn(&'a [O]) -> Offsets<'a>,
+    ) -> Result<Self> {
+        let child = list.values();
+        let values = match child.data_type() {
+            DataType::Float32 => Values::F32(child.as_primitive::<Float32Type>().values()),
+            DataType::Float64 => Values::F64(child.as_primitive::<Float64Type>().values()),
+            other => {
+                return Err(TightscanError::schema(
+                    name,
+                    format!("expected float32 or float64 samples, got {other}"),
+                ))
+            }
+        };
+        let value_nulls = child.nulls().filter(|n| n.null_count() > 0);
+        Ok(Self {
+            name,
+            offsets: wrap(list.value_offsets()),
+            list_nulls: list.nulls().filter(|n| n.null_count() > 0),
+            values,
+            value_nulls,
+        })
+    }
+
+    /// The samples of row `i`.
+    pub fn row(&self, i: usize) -> ChannelRow<'a> {
+        if self.list_nulls.is_some_and(|n| n.is_null(i)) {
+            return ChannelRow::Null;
+        }
+        let (start, end) = match self.offsets {
+            Offsets::I32(o) => (o[i] as usize, o[i + 1] as usize),
+            Offsets::I64(o) => (o[i] as usize, o[i + 1] as usize),
+        };
+        let samples = match self.values {
+            Values::F32(v) => Samples::F32(&v[start..end]),
+            Values::F64(v) => Samples::F64(&v[start..end]),
+        };
+        let null_count = match self.value_nulls {
+            Some(n) if end > start => n.slice(start, end - start).null_count(),
+            _ => 0,
+        };
+        ChannelRow::Present { samples, null_count }
+    }
+}
+
+/// Zero-copy view of a nested tightening batch.
+#[derive(Debug)]
+pub struct TighteningTable<'a> {
+    /// Number of tightenings (rows).
+    pub n_rows: usize,
+    /// Required channels, `angle` first.
+    pub angle: ChannelColumn<'a>,
+    /// `torque`.
+    pub torque: ChannelColumn<'a>,
+    /// Optional channels present in the table.
+    pub optional: Vec<ChannelColumn<'a>>,
+}
+
+impl<'a> TighteningTable<'a> {
+    /// Views a nested-layout batch (see [`schema::detect_layout`]).
+    pub fn new(batch: &'a RecordBatch) -> Result<Self> {
+        let column = |name: &'static str| -> Result<Option<ChannelColumn<'a>>> {
+            match batch.column_by_name(name) {
+                Some(a) => ChannelColumn::from_array(name, a.as_ref()).map(Some),
+                None => Ok(None),
+            }
+        };
+        let required = |name: &'static str| -> Result<ChannelColumn<'a>> {
+            column(name)?.ok_or_else(|| TightscanError::schema(name, "required column is missing"))
+        };
+        let angle = required(schema::ANGLE)?;
+        let torque = required(schema::TORQUE)?;
+        let mut optional = Vec::new();
+        for spec in CHANNELS.iter().filter(|s| !s.required) {
+            if let Some(c) = column(spec.name)? {
+                optional.push(c);
+            }
+        }
+        Ok(Self { n_rows: batch.num_rows(), angle, torque, optional })
+    }
+}
+
+/// Key of a tightening id for grouping long-layout samples.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, Debug)]
+enum IdKey<'a> {
+    Null,
+    Int(i128),
+    Str(&'a str),
+}
+
+fn id_keys(ids: &dyn Array) -> Result<Vec<IdKey<'_>>> {
+    use arrow_array::types::*;
+    macro_rules! ints {
+        ($t:ty) => {{
+            let a = ids.as_primitive::<$t>();
+            (0..a.len())
+                .map(|i| if a.is_null(i) { IdKey::Null } else { IdKey::Int(a.value(i) as i128) })
+                .collect()
+        }};
+    }
+    let keys = match ids.data_type() {
+        DataType::Int8 => ints!(Int8Type),
+        DataType::Int16 => ints!(Int16Type),
+        DataType::Int32 => ints!(Int32Type),
+        DataType::Int64 => ints!(Int64Type),
+        DataType::UInt8 => ints!(UInt8Type),
+        DataType::UInt16 => ints!(UInt16Type),
+        DataType::UInt32 => ints!(UInt32Type),
+        DataType::UInt64 => ints!(UInt64Type),
+        DataType::Utf8 => ids.as_string::<i32>().iter().map(|s| s.map_or(IdKey::Null, IdKey::Str)).collect(),
+        DataType::LargeUtf8 => ids.as_string::<i64>().iter().map(|s| s.map_or(IdKey::Null, IdKey::Str)).collect(),
+        DataType::Utf8View => ids.as_string_view().iter().map(|s| s.map_or(IdKey::Null, IdKey::Str)).collect(),
+        other => {
+            return Err(TightscanError::schema(
+                TIGHTENING_ID,
+                format!("expected a string or integer column, got {other}"),
+            ))
+        }
+    };
+    Ok(keys)
+}
+
+/// Turns a long-layout batch (one row per sample) into the nested layout (one row per
+/// tightening), in order of first appearance, each tightening's samples in their order.
+///
+/// Samples that arrive grouped (the usual case) are not copied: the new lists point into the
+/// original value buffers. Interleaved tightenings are gathered with one `take` per channel.
+/// Samples with a null id form one tightening with a null id (its status will say so).
+/// `passthrough` columns take the value of each tightening's first sample.
+pub fn nest_long(batch: &RecordBatch, passthrough: &[String]) -> Result<RecordBatch> {
+    let ids = batch
+        .column_by_name(TIGHTENING_ID)
+        .ok_or_else(|| TightscanError::schema(TIGHTENING_ID, "required column is missing"))?;
+    let keys = id_keys(ids.as_ref())?;
+    let n = keys.len();
+
+    // Group rows, visiting the hash map only at the start of each run of equal ids.
+    let mut group_of: HashMap<IdKey, usize> = HashMap::new();
+    let mut groups: Vec<Vec<(usize, usize)>> = Vec::new(); // runs [start, end) per group
+    let mut run_start = 0;
+    for i in 1..=n {
+        if i == n || keys[i] != keys[run_start] {
+            let next = groups.len();
+            let g = *group_of.entry(keys[run_start]).or_insert(next);
+            if g == next {
+                groups.push(Vec::new());
+            }
+            groups[g].push((run_start, i));
+            run_start = i;
+        }
+    }
+    let contiguous = {
+        // Grouped and already in first-appearance order: the permutation is the identity.
+        let mut expected = 0;
+        groups.iter().all(|runs| {
+            runs.len() == 1 && runs[0].0 == expected && {
+                expected = runs[0].1;
+                true
+            }
+        })
+    };
+    let mut offsets = Vec::with_capacity(groups.len() + 1);
+    offsets.push(0i64);
+    let mut first_rows = Vec::with_capacity(groups.len());
+    let mut order: Vec<u32> = Vec::new();
+    let mut total = 0i64;
+    for runs in &groups {
+        first_rows.push(runs[0].0 as u32);
+        for &(s, e) in runs {
+            total += (e - s) as i64;
+            if !contiguous {
+                order.extend((s as u32)..(e as u32));
+            }
+        }
+        offsets.push(total);
+    }
+    let order = UInt32Array::from(order);
+    let first_rows = UInt32Array::from(first_rows);
+    let offsets = OffsetBuffer::new(ScalarBuffer::from(offsets));
+
+    let mut fields: Vec<Field> = Vec::new();
+    let mut columns: Vec<ArrayRef> = Vec::new();
+    fields.push(batch.schema().field_with_name(TIGHTENING_ID)?.clone());
+    columns.push(take(ids.as_ref(), &first_rows, None)?);
+    for spec in CHANNELS {
+        let Some(values) = batch.column_by_name(spec.name) else { continue };
+        let values = if contiguous { values.clone() } else { take(values.as_ref(), &order, None)? };
+        let item = Arc::new(Field::new_list_field(values.data_type().clone(), true));
+        let list = LargeListArray::try_new(item.clone(), offsets.clone(), values, None)?;
+        fields.push(Field::new(spec.name, DataType::LargeList(item), true));
+        columns.push(Arc::new(list));
+    }
+    for name in passthrough {
+        let col = batch
+            .column_by_name(name)
+            .ok_or_else(|| TightscanError::schema(name.as_str(), "pass-through column is missing"))?;
+        fields.push(batch.schema().field_with_name(name)?.clone());
+        columns.push(take(col.as_ref(), &first_rows, None)?);
+    }
+    Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?)
+}
+
+/// Nested view of any contract batch: the batch itself, or its long layout nested.
+pub fn to_nested(batch: &RecordBatch, passthrough: &[String]) -> Result<RecordBatch> {
+    match schema::detect_layout(batch.schema().as_ref())? {
+        Layout::Nested => Ok(batch.clone()),
+        Layout::Long => nest_long(batch, passthrough),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use arrow_array::{Float32Array, Float64Array, Int64Array, StringArray};
+
+    fn long_batch(ids: Vec<&str>, angle: Vec<f64>) -> RecordBatch {
+        let torque: Vec<f32> = angle.iter().map(|a| (*a as f32) * 2.0).collect();
+        let schema = Schema::new(vec![
+            Field::new(TIGHTENING_ID, DataType::Utf8, true),
+            Field::new("angle", DataType::Float64, true),
+            Field::new("torque", DataType::Float32, true),
+            Field::new("station", DataType::Int64, true),
+        ]);
+        let n = ids.len() as i64;
+        RecordBatch::try_new(
+            Arc::new(schema),
+            vec![
+                Arc::new(StringArray::from(ids)),
+                Arc::new(Float64Array::from(angle)),
+                Arc::new(Float32Array::from(torque)),
+                Arc::new(Int64Array::from((0..n).collect::<Vec<_>>())),
+            ],
+        )
+        .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    fn angles(nested: &RecordBatch, row: usize) -> Vec<f64> {
+        let t = TighteningTable::new(nested).unwrap_or_else(|e| panic!("{e}"));
+        match t.angle.row(row) {
+            ChannelRow::Present { samples: Samples::F64(s), .. } => s.to_vec(),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn grouped_long_layout_nests_in_place() {
+        let b = long_batch(vec!["a", "a", "b", "b", "b"], vec![1.0, 2.0, 3.0, 4.0, 5.0]);
+        let nested = nest_long(&b, &["station".to_string()]).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(nested.num_rows(), 2);
+        assert_eq!(angles(&nested, 0), vec![1.0, 2.0]);
+        assert_eq!(angles(&nested, 1), vec![3.0, 4.0, 5.0]);
+        let station = nested.column_by_name("station").map(|c| c.as_primitive::<arrow_array::types::Int64Type>().values().to_vec());
+        assert_eq!(station, Some(vec![0, 2]));
+    }
+
+    #[test]
+    fn interleaved_long_layout_keeps_first_appearance_order() {
+        let b = long_batch(vec!["b", "a", "b", "a", "c"], vec![1.0, 2.0, 3.0, 4.0, 5.0]);
+        let nested = nest_long(&b, &[]).unwrap_or_else(|e| panic!("{e}"));
+        let ids: Vec<Option<&str>> = nested.column(0).as_string::<i32>().iter().collect();
+        assert_eq!(ids, vec![Some("b"), Some("a"), Some("c")]);
+        assert_eq!(angles(&nested, 0), vec![1.0, 3.0]);
+        assert_eq!(angles(&nested, 1), vec![2.0, 4.0]);
+        assert_eq!(angles(&nested, 2), vec![5.0]);
+    }
+}

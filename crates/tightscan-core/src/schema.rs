@@ -1,0 +1,274 @@
+//! The data contract: names, units and types of the tightening table and of the result table.
+//!
+//! One source of truth: `docs/data-contract.md` is checked against these constants by a test.
+
+use std::sync::Arc;
+
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+
+use crate::error::{Result, TightscanError};
+
+/// Identifier of a tightening: string or integer, returned unchanged.
+pub const TIGHTENING_ID: &str = "tightening_id";
+/// Rotation angle [deg]. Required.
+pub const ANGLE: &str = "angle";
+/// Torque [Nm]. Required.
+pub const TORQUE: &str = "torque";
+/// Time [s]. Optional.
+pub const TIME: &str = "time";
+/// Tool speed [rpm]. Optional.
+pub const SPEED: &str = "speed";
+/// Clamp force [kN] (test rigs). Optional.
+pub const CLAMP_FORCE: &str = "clamp_force";
+/// Tightening strategy: CST, CSDT or HDT. Optional metadata.
+pub const STRATEGY: &str = "strategy";
+/// ISO thread designation, e.g. "M8x1.25"; "M8" means coarse pitch. Optional metadata.
+pub const THREAD: &str = "thread";
+/// Target torque [Nm]. Optional metadata.
+pub const TARGET_TORQUE: &str = "target_torque";
+
+/// A measured channel of the contract.
+#[derive(Clone, Copy, Debug)]
+pub struct ChannelSpec {
+    /// Column name.
+    pub name: &'static str,
+    /// Unit of its samples.
+    pub unit: &'static str,
+    /// Whether every table must have it.
+    pub required: bool,
+}
+
+/// All channels, required first. Every channel of a tightening has the same length.
+pub const CHANNELS: [ChannelSpec; 5] = [
+    ChannelSpec { name: ANGLE, unit: "deg", required: true },
+    ChannelSpec { name: TORQUE, unit: "Nm", required: true },
+    ChannelSpec { name: TIME, unit: "s", required: false },
+    ChannelSpec { name: SPEED, unit: "rpm", required: false },
+    ChannelSpec { name: CLAMP_FORCE, unit: "kN", required: false },
+];
+
+/// How samples are laid out in the table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// One row per tightening, channels as list<float>.
+    Nested,
+    /// One row per sample, `tightening_id` plus scalar channel columns.
+    Long,
+}
+
+/// Decides the layout from the type of `angle`, and checks every channel's type.
+pub fn detect_layout(schema: &Schema) -> Result<Layout> {
+    let angle = schema
+        .field_with_name(ANGLE)
+        .map_err(|_| missing_column(schema, ANGLE))?;
+    let layout = match angle.data_type() {
+        DataType::List(_) | DataType::LargeList(_) => Layout::Nested,
+        DataType::Float32 | DataType::Float64 => Layout::Long,
+        other => {
+            return Err(TightscanError::schema(
+                ANGLE,
+                format!(
+                    "expected list<float32|float64> (one row per tightening) or float32/float64 \
+                     (one row per sample), got {other}"
+                ),
+            ))
+        }
+    };
+    for spec in CHANNELS {
+        let field = match schema.field_with_name(spec.name) {
+            Ok(f) => f,
+            Err(_) if spec.required => return Err(missing_column(schema, spec.name)),
+            Err(_) => continue,
+        };
+        check_channel_type(spec.name, field.data_type(), layout)?;
+    }
+    if layout == Layout::Long && schema.field_with_name(TIGHTENING_ID).is_err() {
+        return Err(TightscanError::schema(
+            TIGHTENING_ID,
+            "missing: the long layout (one row per sample) needs it to group samples into tightenings",
+        ));
+    }
+    if let Ok(id) = schema.field_with_name(TIGHTENING_ID) {
+        if !is_id_type(id.data_type()) {
+            return Err(TightscanError::schema(
+                TIGHTENING_ID,
+                format!("expected a string or integer column, got {}", id.data_type()),
+            ));
+        }
+    }
+    Ok(layout)
+}
+
+/// True for the integer and string types accepted as `tightening_id`.
+pub fn is_id_type(dt: &DataType) -> bool {
+    matches!(
+        dt,
+        DataType::Int8
+            | DataType::Int16
+            | DataType::Int32
+            | DataType::Int64
+            | DataType::UInt8
+            | DataType::UInt16
+            | DataType::UInt32
+            | DataType::UInt64
+            | DataType::Utf8
+            | DataType::LargeUtf8
+            | DataType::Utf8View
+    )
+}
+
+fn check_channel_type(name: &str, dt: &DataType, layout: Layout) -> Result<()> {
+    let value_type = match (layout, dt) {
+        (Layout::Nested, DataType::List(item) | DataType::LargeList(item)) => item.data_type(),
+        (Layout::Long, DataType::Float32 | DataType::Float64) => return Ok(()),
+        (Layout::Nested, other) => {
+            return Err(TightscanError::schema(
+                name,
+                format!("expected list<float32|float64> like 'angle', got {other}"),
+            ))
+        }
+        (Layout::Long, other) => {
+            return Err(TightscanError::schema(
+                name,
+                format!("expected float32 or float64 samples like 'angle', got {other}"),
+            ))
+        }
+    };
+    match value_type {
+        DataType::Float32 | DataType::Float64 => Ok(()),
+        other => Err(TightscanError::schema(
+            name,
+            format!(
+                "expected float32 or float64 samples, got {other}; cast the channel to float64 first"
+            ),
+        )),
+    }
+}
+
+fn missing_column(schema: &Schema, name: &str) -> TightscanError {
+    let have: Vec<&str> = schema.fields().iter().map(|f| f.name().as_str()).collect();
+    TightscanError::schema(name, format!("required column is missing (table has: {})", have.join(", ")))
+}
+
+/// Result columns: name, type, unit, meaning. `detect` builds its arrays in this order, and the
+/// data-contract document lists the same names.
+pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
+    ("status", ResultType::Utf8, "", "'ok', or 'code: detail' saying what is wrong with the tightening"),
+    ("n_samples", ResultType::Int64, "", "samples in the tightening"),
+    ("change_detected", ResultType::Boolean, "", "a friction change was found (null when status is not ok)"),
+    ("change_angle", ResultType::Float64, "deg", "estimated start of the change (null when none)"),
+    ("change_index", ResultType::Int64, "", "sample index of the estimated start (null when none)"),
+    ("elastic_start_angle", ResultType::Float64, "deg", "start of the analysed elastic window"),
+    ("elastic_end_angle", ResultType::Float64, "deg", "end of the analysed elastic window"),
+    ("torque_rate", ResultType::Float64, "Nm/deg", "least-squares torque rate over the elastic window"),
+    ("cusum_alarm", ResultType::Boolean, "", "CUSUM crossed its threshold"),
+    ("cusum_alarm_index", ResultType::Int64, "", "sample index where it crossed"),
+    ("cusum_alarm_angle", ResultType::Float64, "deg", "angle where it crossed"),
+    ("cusum_side", ResultType::Utf8, "", "'increase' or 'decrease' of the torque rate"),
+    ("cusum_change_index", ResultType::Int64, "", "sample index of the change-start estimate"),
+    ("cusum_change_angle", ResultType::Float64, "deg", "angle of the change-start estimate"),
+    ("cusum_max_statistic", ResultType::Float64, "sigma", "largest CUSUM statistic over the window"),
+    ("cusum_threshold", ResultType::Float64, "sigma", "threshold h in use"),
+    ("cusum_reference_rate", ResultType::Float64, "Nm/deg", "torque rate of the training window"),
+    ("cusum_noise_sd", ResultType::Float64, "Nm", "robust torque noise scale from the training window"),
+    ("cusum_dispersion", ResultType::Float64, "", "spread of standardised training blocks (1 for white noise)"),
+    ("cusum_blocks", ResultType::Int64, "", "blocks monitored after the training window"),
+    ("cusum_block_angle", ResultType::Float64, "deg", "angle width of one block"),
+];
+
+/// Arrow type of a result column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResultType {
+    /// Utf8.
+    Utf8,
+    /// Int64.
+    Int64,
+    /// Float64.
+    Float64,
+    /// Boolean.
+    Boolean,
+}
+
+impl ResultType {
+    /// The Arrow data type.
+    pub fn data_type(self) -> DataType {
+        match self {
+            Self::Utf8 => DataType::Utf8,
+            Self::Int64 => DataType::Int64,
+            Self::Float64 => DataType::Float64,
+            Self::Boolean => DataType::Boolean,
+        }
+    }
+}
+
+/// Result schema: `tightening_id` (type as given), [`RESULT_COLUMNS`], then pass-through fields.
+pub fn result_schema(id_field: Field, passthrough: &[Field]) -> SchemaRef {
+    let mut fields = Vec::with_capacity(1 + RESULT_COLUMNS.len() + passthrough.len());
+    fields.push(id_field.with_name(TIGHTENING_ID));
+    for (name, ty, _, _) in RESULT_COLUMNS {
+        let nullable = *name != "status" && *name != "n_samples";
+        fields.push(Field::new(*name, ty.data_type(), nullable));
+    }
+    fields.extend(passthrough.iter().cloned());
+    Arc::new(Schema::new(fields))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn list(dt: DataType) -> DataType {
+        DataType::List(Arc::new(Field::new_list_field(dt, true)))
+    }
+
+    #[test]
+    fn layouts() {
+        let nested = Schema::new(vec![
+            Field::new(ANGLE, list(DataType::Float32), true),
+            Field::new(TORQUE, list(DataType::Float64), true),
+        ]);
+        assert_eq!(detect_layout(&nested).ok(), Some(Layout::Nested));
+        let long = Schema::new(vec![
+            Field::new(TIGHTENING_ID, DataType::Utf8, true),
+            Field::new(ANGLE, DataType::Float64, true),
+            Field::new(TORQUE, DataType::Float32, true),
+        ]);
+        assert_eq!(detect_layout(&long).ok(), Some(Layout::Long));
+    }
+
+    #[test]
+    fn errors_name_the_column() {
+        let no_torque = Schema::new(vec![Field::new(ANGLE, list(DataType::Float32), true)]);
+        let e = detect_layout(&no_torque).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("'torque'") && e.contains("missing"), "{e}");
+
+        let text_torque = Schema::new(vec![
+            Field::new(ANGLE, list(DataType::Float32), true),
+            Field::new(TORQUE, list(DataType::Utf8), true),
+        ]);
+        let e = detect_layout(&text_torque).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("'torque'"), "{e}");
+
+        let mixed = Schema::new(vec![
+            Field::new(ANGLE, list(DataType::Float32), true),
+            Field::new(TORQUE, DataType::Float32, true),
+        ]);
+        let e = detect_layout(&mixed).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("'torque'"), "{e}");
+
+        let long_no_id = Schema::new(vec![
+            Field::new(ANGLE, DataType::Float64, true),
+            Field::new(TORQUE, DataType::Float64, true),
+        ]);
+        let e = detect_layout(&long_no_id).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("'tightening_id'"), "{e}");
+
+        let float_id = Schema::new(vec![
+            Field::new(TIGHTENING_ID, DataType::Float64, true),
+            Field::new(ANGLE, list(DataType::Float64), true),
+            Field::new(TORQUE, list(DataType::Float64), true),
+        ]);
+        let e = detect_layout(&float_id).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("'tightening_id'"), "{e}");
+    }
+}

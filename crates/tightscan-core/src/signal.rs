@@ -1,0 +1,386 @@
+//! The friction signal: the elastic window of a curve and its torque rate, block by block.
+//!
+//! In the elastic clamping zone the clamp force grows linearly with angle, so the torque rate
+//! dT/dtheta = k_joint (0.16 P + 0.58 d2 mu_th + Dkm/2 mu_b) is proportional to the friction
+//! term at constant joint stiffness (METHODS.md section 1). Production data has torque and angle
+//! only, so the torque rate is the friction signal there.
+//!
+//! The window is found simply (the physics layer refines it): walking back from the torque peak
+//! to the last sample below `start_fraction` of the rise, and forward to the first sample at
+//! `end_fraction` of it. The window is cut into blocks of equal angle; in each block the torque
+//! rate is a least-squares slope. Disjoint blocks give independent slopes under white noise, and
+//! equal angle (rather than equal sample count) keeps each slope's variance from growing when
+//! the tool slows down near the target (HDT).
+
+use crate::error::{Result, TightscanError};
+use crate::input::Sample;
+
+/// How the elastic window is found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ElasticZoneConfig {
+    /// Window starts where torque first exceeds this fraction of the rise (base to peak) on the
+    /// way to the peak.
+    pub start_fraction: f64,
+    /// Window ends where torque first reaches this fraction of the rise.
+    pub end_fraction: f64,
+    /// Share of the window's angle span trimmed off each end. The window's ends are found on
+    /// noisy torque, so the samples next to them are a selected, truncated sample of the noise;
+    /// trimming by angle (which is nearly noise-free) removes them without new selection.
+    pub trim_fraction: f64,
+    /// Fewest samples in the window (and in the curve).
+    pub min_samples: usize,
+}
+
+impl Default for ElasticZoneConfig {
+    fn default() -> Self {
+        Self { start_fraction: 0.3, end_fraction: 0.9, trim_fraction: 0.05, min_samples: 30 }
+    }
+}
+
+/// How the window is cut into blocks and which blocks train the reference.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlockConfig {
+    /// Most blocks per window.
+    pub max_blocks: usize,
+    /// Fewest samples per block on average (fewer samples give fewer, wider blocks).
+    pub min_block_samples: usize,
+    /// Share of the blocks, from the start of the window, that trains reference and scale.
+    pub training_fraction: f64,
+    /// Fewest training blocks.
+    pub min_training_blocks: usize,
+}
+
+impl Default for BlockConfig {
+    fn default() -> Self {
+        Self { max_blocks: 40, min_block_samples: 5, training_fraction: 0.25, min_training_blocks: 8 }
+    }
+}
+
+impl ElasticZoneConfig {
+    /// Checks every field, naming the one out of range.
+    pub fn validate(&self) -> Result<()> {
+        let ok = |c: bool, name: &str, msg: String| if c { Ok(()) } else { Err(TightscanError::parameter(name, msg)) };
+        ok(
+            self.start_fraction > 0.0 && self.start_fraction < 1.0,
+            "zone_start_fraction",
+            format!("must be in (0, 1), got {}", self.start_fraction),
+        )?;
+        ok(
+            self.end_fraction > self.start_fraction && self.end_fraction <= 1.0,
+            "zone_end_fraction",
+            format!("must be in (zone_start_fraction, 1], got {}", self.end_fraction),
+        )?;
+        ok(
+            (0.0..0.25).contains(&self.trim_fraction),
+            "zone_trim_fraction",
+            format!("must be in [0, 0.25), got {}", self.trim_fraction),
+        )?;
+        ok(self.min_samples >= 10, "zone_min_samples", format!("must be >= 10, got {}", self.min_samples))
+    }
+}
+
+impl BlockConfig {
+    /// Checks every field, naming the one out of range.
+    pub fn validate(&self) -> Result<()> {
+        let ok = |c: bool, name: &str, msg: String| if c { Ok(()) } else { Err(TightscanError::parameter(name, msg)) };
+        ok(self.max_blocks >= 4, "max_blocks", format!("must be >= 4, got {}", self.max_blocks))?;
+        ok(
+            self.min_block_samples >= 3,
+            "min_block_samples",
+            format!("must be >= 3 (a slope and a residual), got {}", self.min_block_samples),
+        )?;
+        ok(
+            self.training_fraction > 0.0 && self.training_fraction < 1.0,
+            "training_fraction",
+            format!("must be in (0, 1), got {}", self.training_fraction),
+        )?;
+        ok(
+            self.min_training_blocks >= 2 && self.min_training_blocks < self.max_blocks,
+            "min_training_blocks",
+            format!("must be in [2, max_blocks), got {}", self.min_training_blocks),
+        )
+    }
+}
+
+/// Sample range of the elastic window, `[start, end)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ElasticWindow {
+    /// First sample.
+    pub start: usize,
+    /// One past the last sample.
+    pub end: usize,
+}
+
+/// Why no window could be found.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum WindowError {
+    /// Torque never varies.
+    FlatTorque,
+    /// The window holds too few samples.
+    TooShort(usize),
+    /// Angle does not advance across the window.
+    AngleStuck,
+}
+
+/// Finds the elastic window (see the module docs).
+pub fn elastic_window<A: Sample, T: Sample>(
+    angle: &[A],
+    torque: &[T],
+    cfg: &ElasticZoneConfig,
+) -> std::result::Result<ElasticWindow, WindowError> {
+    let n = torque.len();
+    let (mut i_peak, mut peak, mut low) = (0, f64::NEG_INFINITY, f64::INFINITY);
+    for (i, t) in torque.iter().enumerate() {
+        let t = t.to_f64();
+        if t > peak {
+            peak = t;
+            i_peak = i;
+        }
+        low = low.min(t);
+    }
+    if n == 0 || peak <= low {
+        return Err(WindowError::FlatTorque);
+    }
+    // Base level: the lowest torque before the peak (prevailing torque and sensor offset).
+    let base = torque[..=i_peak].iter().fold(f64::INFINITY, |m, t| m.min(t.to_f64()));
+    let rise = peak - base;
+    let lo = base + cfg.start_fraction * rise;
+    let hi = base + cfg.end_fraction * rise;
+    let mut start = i_peak;
+    while start > 0 && torque[start - 1].to_f64() >= lo {
+        start -= 1;
+    }
+    let mut end = start;
+    while end < i_peak && torque[end].to_f64() < hi {
+        end += 1;
+    }
+    if end <= start || angle[end - 1].to_f64() <= angle[start].to_f64() {
+        return if end - start < cfg.min_samples { Err(WindowError::TooShort(end - start)) } else { Err(WindowError::AngleStuck) };
+    }
+    let (a_lo, a_hi) = (angle[start].to_f64(), angle[end - 1].to_f64());
+    let margin = cfg.trim_fraction * (a_hi - a_lo);
+    while start < end && angle[start].to_f64() < a_lo + margin {
+        start += 1;
+    }
+    while end > start && angle[end - 1].to_f64() > a_hi - margin {
+        end -= 1;
+    }
+    let len = end - start;
+    if len < cfg.min_samples {
+        return Err(WindowError::TooShort(len));
+    }
+    if angle[end - 1].to_f64() <= angle[start].to_f64() {
+        return Err(WindowError::AngleStuck);
+    }
+    Ok(ElasticWindow { start, end })
+}
+
+/// Least-squares sums of one block, x = angle relative to the block's left edge and
+/// y = torque relative to the window's first sample (both small, so no cancellation).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BlockStats {
+    /// Samples in the block.
+    pub n: usize,
+    /// First sample index.
+    pub first: usize,
+    /// Last sample index.
+    pub last: usize,
+    /// Left edge of the block relative to the window start [deg].
+    pub offset: f64,
+    sx: f64,
+    sy: f64,
+    sxx: f64,
+    sxy: f64,
+    syy: f64,
+}
+
+impl BlockStats {
+    /// Centred sum of squares of x.
+    pub fn sxx_c(&self) -> f64 {
+        self.sxx - self.sx * self.sx / self.n as f64
+    }
+    fn sxy_c(&self) -> f64 {
+        self.sxy - self.sx * self.sy / self.n as f64
+    }
+    /// Least-squares torque rate [Nm/deg].
+    pub fn slope(&self) -> f64 {
+        self.sxy_c() / self.sxx_c()
+    }
+    /// Intercept at the block's left edge.
+    pub fn intercept(&self) -> f64 {
+        (self.sy - self.slope() * self.sx) / self.n as f64
+    }
+    /// Residual sum of squares of the block's own line.
+    pub fn rss(&self) -> f64 {
+        let syy_c = self.syy - self.sy * self.sy / self.n as f64;
+        (syy_c - self.sxy_c() * self.sxy_c() / self.sxx_c()).max(0.0)
+    }
+}
+
+/// Pooled least-squares sums over several blocks, in window coordinates.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PooledFit {
+    n: f64,
+    sx: f64,
+    sy: f64,
+    sxx: f64,
+    sxy: f64,
+}
+
+impl PooledFit {
+    /// Adds a block, shifting its x by its offset: sum (x + o) = sx + n o, etc.
+    pub fn add(&mut self, b: &BlockStats) {
+        let (n, o) = (b.n as f64, b.offset);
+        self.n += n;
+        self.sx += b.sx + n * o;
+        self.sy += b.sy;
+        self.sxx += b.sxx + 2.0 * o * b.sx + n * o * o;
+        self.sxy += b.sxy + o * b.sy;
+    }
+    /// Least-squares slope of all samples added.
+    pub fn slope(&self) -> f64 {
+        let sxx_c = self.sxx - self.sx * self.sx / self.n;
+        (self.sxy - self.sx * self.sy / self.n) / sxx_c
+    }
+}
+
+/// Blocks of one window: stats per block (including blocks too thin to give a slope) and the
+/// block width.
+#[derive(Clone, Debug, Default)]
+pub struct Blocks {
+    /// One entry per block, in angle order.
+    pub stats: Vec<BlockStats>,
+    /// Width of a block [deg].
+    pub width: f64,
+}
+
+impl Blocks {
+    /// True when block `b` has a usable slope (3+ samples and angle spread).
+    pub fn usable(&self, b: usize) -> bool {
+        let s = &self.stats[b];
+        // A block whose angles barely differ has no slope; the relative floor absorbs rounding.
+        s.n >= 3 && s.sxx_c() > 1e-9 * self.width * self.width
+    }
+}
+
+/// Cuts the window into `n_blocks` blocks of equal angle and accumulates each one's sums.
+pub fn block_stats<A: Sample, T: Sample>(
+    angle: &[A],
+    torque: &[T],
+    window: ElasticWindow,
+    n_blocks: usize,
+    out: &mut Blocks,
+) {
+    let a0 = angle[window.start].to_f64();
+    let t0 = torque[window.start].to_f64();
+    let span = angle[window.end - 1].to_f64() - a0;
+    let width = span / n_blocks as f64;
+    out.width = width;
+    out.stats.clear();
+    out.stats.extend((0..n_blocks).map(|b| BlockStats {
+        first: usize::MAX,
+        offset: b as f64 * width,
+        ..BlockStats::default()
+    }));
+    let inv = 1.0 / width;
+    for i in window.start..window.end {
+        let x = angle[i].to_f64() - a0;
+        let b = ((x * inv) as isize).clamp(0, n_blocks as isize - 1) as usize;
+        let s = &mut out.stats[b];
+        let xl = x - s.offset;
+        let y = torque[i].to_f64() - t0;
+        s.n += 1;
+        s.first = s.first.min(i);
+        s.last = s.last.max(i);
+        s.sx += xl;
+        s.sy += y;
+        s.sxx += xl * xl;
+        s.sxy += xl * y;
+        s.syy += y * y;
+    }
+}
+
+/// Number of blocks for a window of `len` samples.
+pub fn block_count(len: usize, cfg: &BlockConfig) -> usize {
+    (len / cfg.min_block_samples).min(cfg.max_blocks)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn window_of_a_clean_ramp() {
+        // Rundown at 0.1 Nm for 100 samples, then a ramp 0.1 + 0.2 (theta - 100) up to 20 Nm.
+        let angle: Vec<f64> = (0..300).map(|i| i as f64).collect();
+        let torque: Vec<f64> =
+            angle.iter().map(|&a| if a < 100.0 { 0.1 } else { (0.1 + 0.2 * (a - 100.0)).min(40.0) }).collect();
+        let w = elastic_window(&angle, &torque, &ElasticZoneConfig::default());
+        let w = w.unwrap_or(ElasticWindow { start: 0, end: 0 });
+        // peak 39.9 at 299; base 0.1; 30 % level = 12.04 -> first sample >= it is 160; 90 %
+        // level first reached at 280, so the window is 160..=279, trimmed by 5 % of 119 deg.
+        assert_eq!(w.start, 166);
+        assert_eq!(w.end, 274);
+        let mut blocks = Blocks::default();
+        block_stats(&angle, &torque, w, 10, &mut blocks);
+        for b in 0..10 {
+            assert!(blocks.usable(b));
+            assert!((blocks.stats[b].slope() - 0.2).abs() < 1e-12);
+            assert!(blocks.stats[b].rss() < 1e-9);
+        }
+        let mut pooled = PooledFit::default();
+        blocks.stats.iter().for_each(|b| pooled.add(b));
+        assert!((pooled.slope() - 0.2).abs() < 1e-12);
+        assert_eq!(blocks.stats.iter().map(|b| b.n).sum::<usize>(), 108);
+    }
+
+    #[test]
+    fn flat_and_short_curves() {
+        let angle: Vec<f32> = (0..50).map(|i| i as f32).collect();
+        let flat = vec![1.0f32; 50];
+        assert_eq!(elastic_window(&angle, &flat, &ElasticZoneConfig::default()), Err(WindowError::FlatTorque));
+        let step: Vec<f32> = (0..50).map(|i| if i < 45 { 0.0 } else { 1.0 }).collect();
+        assert!(matches!(elastic_window(&angle, &step, &ElasticZoneConfig::default()), Err(WindowError::TooShort(_))));
+    }
+}
+
+/// Angle ranges, relative to the window start, to leave out of the friction signal because the
+/// tool stopped there (a CSDT pause). At standstill the torque relaxes; after the restart it is
+/// wound up again, faster than friction would raise it. Neither is friction, so every block from
+/// the stop until the torque regains its level at the stop is left out.
+///
+/// A stop is a run of unchanged angle ten times longer than the window's mean run (and at least
+/// ten samples): quantised angle at low speed repeats too, but not for that long.
+pub fn stop_ranges<A: Sample, T: Sample>(angle: &[A], torque: &[T], window: ElasticWindow, out: &mut Vec<(f64, f64)>) {
+    out.clear();
+    let (start, end) = (window.start, window.end);
+    let run_end = |i: usize| {
+        let a = angle[i].to_f64();
+        let mut j = i + 1;
+        while j < end && angle[j].to_f64() == a {
+            j += 1;
+        }
+        j
+    };
+    let mut runs = 0usize;
+    let mut i = start;
+    while i < end {
+        i = run_end(i);
+        runs += 1;
+    }
+    let stop_len = ((10 * (end - start)) / runs.max(1)).max(10);
+    let a0 = angle[start].to_f64();
+    let mut i = start;
+    while i < end {
+        let j = run_end(i);
+        if j - i >= stop_len {
+            let level = torque[i].to_f64();
+            let mut k = j;
+            while k < end && torque[k].to_f64() < level {
+                k += 1;
+            }
+            out.push((angle[i].to_f64() - a0, angle[k.min(end - 1)].to_f64() - a0));
+        }
+        i = j;
+    }
+}

@@ -1,0 +1,134 @@
+//! Per-tightening status: what is wrong with one tightening, reported in its result row.
+//!
+//! A malformed tightening never raises: it gets a row whose `status` column is this value's
+//! text. The text is `code` or `code: detail`; the codes are stable, the details are for people.
+
+use std::fmt;
+
+/// Outcome of checking and analysing one tightening.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TighteningStatus {
+    /// Analysed.
+    Ok,
+    /// The row itself is null (null list, or long-layout samples with a null id).
+    NullTightening,
+    /// No samples at all.
+    Empty,
+    /// A channel's length differs from `angle`'s.
+    LengthMismatch {
+        /// Channel whose length differs.
+        channel: &'static str,
+        /// Its length.
+        len: usize,
+        /// Length of `angle`.
+        expected: usize,
+    },
+    /// Null samples inside a channel.
+    NullValues {
+        /// Channel holding nulls.
+        channel: &'static str,
+        /// How many.
+        count: usize,
+    },
+    /// NaN or infinite samples inside a channel.
+    NonFinite {
+        /// Channel holding them.
+        channel: &'static str,
+        /// How many.
+        count: usize,
+    },
+    /// Fewer samples than the analysis needs.
+    TooShort {
+        /// Samples available where they were counted (whole curve or elastic window).
+        samples: usize,
+        /// Samples needed.
+        minimum: usize,
+        /// Where they were counted.
+        what: &'static str,
+    },
+    /// A channel does not vary at all.
+    FlatSignal {
+        /// Channel that is constant.
+        channel: &'static str,
+    },
+    /// No usable elastic clamping zone was found.
+    NoElasticZone {
+        /// Why not.
+        reason: &'static str,
+    },
+}
+
+impl TighteningStatus {
+    /// Stable machine-readable code (the text before the colon).
+    pub fn code(&self) -> &'static str {
+        match self {
+            Self::Ok => "ok",
+            Self::NullTightening => "null_tightening",
+            Self::Empty => "empty",
+            Self::LengthMismatch { .. } => "length_mismatch",
+            Self::NullValues { .. } => "null_values",
+            Self::NonFinite { .. } => "non_finite",
+            Self::TooShort { .. } => "too_short",
+            Self::FlatSignal { .. } => "flat_signal",
+            Self::NoElasticZone { .. } => "no_elastic_zone",
+        }
+    }
+
+    /// True for [`TighteningStatus::Ok`].
+    pub fn is_ok(&self) -> bool {
+        matches!(self, Self::Ok)
+    }
+}
+
+impl fmt::Display for TighteningStatus {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let code = self.code();
+        match self {
+            Self::Ok => write!(f, "{code}"),
+            Self::NullTightening => write!(f, "{code}: the tightening is null"),
+            Self::Empty => write!(f, "{code}: no samples"),
+            Self::LengthMismatch { channel, len, expected } => write!(
+                f,
+                "{code}: {channel} has {len} samples, angle has {expected}"
+            ),
+            Self::NullValues { channel, count } => {
+                write!(f, "{code}: {channel} has {count} null samples")
+            }
+            Self::NonFinite { channel, count } => {
+                write!(f, "{code}: {channel} has {count} NaN or infinite samples")
+            }
+            Self::TooShort { samples, minimum, what } => {
+                write!(f, "{code}: {samples} samples in the {what}, at least {minimum} needed")
+            }
+            Self::FlatSignal { channel } => write!(f, "{code}: {channel} does not vary"),
+            Self::NoElasticZone { reason } => write!(f, "{code}: {reason}"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn text_starts_with_code() {
+        let all = [
+            TighteningStatus::Ok,
+            TighteningStatus::NullTightening,
+            TighteningStatus::Empty,
+            TighteningStatus::LengthMismatch { channel: "torque", len: 3, expected: 4 },
+            TighteningStatus::NullValues { channel: "angle", count: 1 },
+            TighteningStatus::NonFinite { channel: "torque", count: 2 },
+            TighteningStatus::TooShort { samples: 3, minimum: 30, what: "curve" },
+            TighteningStatus::FlatSignal { channel: "torque" },
+            TighteningStatus::NoElasticZone { reason: "x" },
+        ];
+        for s in all {
+            assert!(s.to_string().starts_with(s.code()), "{s}");
+        }
+        assert_eq!(
+            TighteningStatus::LengthMismatch { channel: "torque", len: 3, expected: 4 }.to_string(),
+            "length_mismatch: torque has 3 samples, angle has 4"
+        );
+    }
+}

@@ -1,0 +1,106 @@
+//! Python dicts to core configurations. Unknown keys and wrong types raise
+//! `InvalidParameterError` naming the key.
+
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyDictMethods};
+use tightscan_core::simulate::{FaultComponent, FaultKind, SimulationConfig, Strategy};
+use tightscan_core::{DetectConfig, TightscanError};
+
+use crate::errors::to_py_err;
+
+fn bad(py: Python<'_>, key: &str, message: impl Into<String>) -> PyErr {
+    to_py_err(py, TightscanError::parameter(key, message))
+}
+
+fn get<'py, T: for<'a> FromPyObject<'a, 'py>>(py: Python<'py>, key: &str, value: &Bound<'py, PyAny>) -> PyResult<T> {
+    value.extract::<T>().map_err(|_| {
+        let ty = value.get_type().name().map(|n| n.to_string()).unwrap_or_default();
+        bad(py, key, format!("has the wrong type ({ty})"))
+    })
+}
+
+/// Flat dict of detection parameters to [`DetectConfig`] (absent keys keep their defaults).
+pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig> {
+    let mut c = DetectConfig::default();
+    let Some(dict) = dict else { return Ok(c) };
+    let py = dict.py();
+    for (k, v) in dict.iter() {
+        let key: String = k.extract()?;
+        if v.is_none() && key != "threshold" {
+            continue;
+        }
+        match key.as_str() {
+            "zone_start_fraction" => c.zone.start_fraction = get(py, &key, &v)?,
+            "zone_end_fraction" => c.zone.end_fraction = get(py, &key, &v)?,
+            "zone_trim_fraction" => c.zone.trim_fraction = get(py, &key, &v)?,
+            "zone_min_samples" => c.zone.min_samples = get(py, &key, &v)?,
+            "max_blocks" => c.blocks.max_blocks = get(py, &key, &v)?,
+            "min_block_samples" => c.blocks.min_block_samples = get(py, &key, &v)?,
+            "training_fraction" => c.blocks.training_fraction = get(py, &key, &v)?,
+            "min_training_blocks" => c.blocks.min_training_blocks = get(py, &key, &v)?,
+            "kappa" => c.cusum.kappa = get(py, &key, &v)?,
+            "arl0" => c.cusum.arl0 = get(py, &key, &v)?,
+            "threshold" => c.cusum.threshold = get(py, &key, &v)?,
+            _ => return Err(bad(py, &key, "unknown detection parameter")),
+        }
+    }
+    Ok(c)
+}
+
+/// [`DetectConfig`] to the flat dict [`detect_config`] reads.
+pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("zone_start_fraction", c.zone.start_fraction)?;
+    d.set_item("zone_end_fraction", c.zone.end_fraction)?;
+    d.set_item("zone_trim_fraction", c.zone.trim_fraction)?;
+    d.set_item("zone_min_samples", c.zone.min_samples)?;
+    d.set_item("max_blocks", c.blocks.max_blocks)?;
+    d.set_item("min_block_samples", c.blocks.min_block_samples)?;
+    d.set_item("training_fraction", c.blocks.training_fraction)?;
+    d.set_item("min_training_blocks", c.blocks.min_training_blocks)?;
+    d.set_item("kappa", c.cusum.kappa)?;
+    d.set_item("arl0", c.cusum.arl0)?;
+    d.set_item("threshold", c.cusum.threshold)?;
+    Ok(d)
+}
+
+fn parse_list<T: std::str::FromStr>(py: Python<'_>, key: &str, names: Vec<String>) -> PyResult<Vec<T>> {
+    names
+        .iter()
+        .map(|n| n.parse::<T>().map_err(|_| bad(py, key, format!("unknown value '{n}'"))))
+        .collect()
+}
+
+/// Dict of simulation parameters to [`SimulationConfig`], validated.
+pub fn simulation_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<SimulationConfig> {
+    let mut c = SimulationConfig::default();
+    if let Some(dict) = dict {
+        let py = dict.py();
+        for (k, v) in dict.iter() {
+            let key: String = k.extract()?;
+            if v.is_none() {
+                continue;
+            }
+            match key.as_str() {
+                "n" => c.n = get(py, &key, &v)?,
+                "seed" => c.seed = get(py, &key, &v)?,
+                "first_id" => c.first_id = get(py, &key, &v)?,
+                "fault_fraction" => c.fault_fraction = get(py, &key, &v)?,
+                "strategies" => c.strategies = parse_list::<Strategy>(py, &key, get(py, &key, &v)?)?,
+                "fault_kinds" => c.fault_kinds = parse_list::<FaultKind>(py, &key, get(py, &key, &v)?)?,
+                "fault_components" => {
+                    c.fault_components = parse_list::<FaultComponent>(py, &key, get(py, &key, &v)?)?
+                }
+                "magnitude_range" => c.magnitude_range = get(py, &key, &v)?,
+                "threads" => c.threads = get(py, &key, &v)?,
+                "torque_noise" => c.torque_noise = get(py, &key, &v)?,
+                "angle_resolution_deg" => c.angle_resolution_deg = get(py, &key, &v)?,
+                "sample_rate_hz" => c.sample_rate_hz = get(py, &key, &v)?,
+                "with_clamp_force" => c.with_clamp_force = get(py, &key, &v)?,
+                _ => return Err(bad(py, &key, "unknown simulation parameter")),
+            }
+        }
+        c.validate().map_err(|e| to_py_err(py, e))?;
+    }
+    Ok(c)
+}

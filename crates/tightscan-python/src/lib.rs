@@ -1,0 +1,116 @@
+//! Python bindings of tightscan-core (`tightscan._core`): type and error conversion only.
+//!
+//! Every call that computes extracts its Python inputs first, then runs in
+//! [`errors::detached`] with the GIL released.
+
+mod config;
+mod errors;
+
+use arrow_array::RecordBatch;
+use arrow_schema::SchemaRef;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use pyo3_arrow::input::AnyRecordBatch;
+use pyo3_arrow::{PySchema, PyTable};
+use tightscan_core::{cusum, simulate as sim, Detector};
+
+use crate::errors::{detached, to_py_err};
+
+/// Analyses every tightening of `data` (anything with the Arrow PyCapsule interface) and
+/// returns a pyarrow Table with one row per input tightening, in input order.
+#[pyfunction]
+#[pyo3(signature = (data, config=None, passthrough=None, first_row=0))]
+fn detect<'py>(
+    py: Python<'py>,
+    data: AnyRecordBatch,
+    config: Option<&Bound<'py, PyDict>>,
+    passthrough: Option<Vec<String>>,
+    first_row: i64,
+) -> PyResult<Bound<'py, PyAny>> {
+    let detector = Detector::new(config::detect_config(config)?).map_err(|e| to_py_err(py, e))?;
+    let passthrough = passthrough.unwrap_or_default();
+    let reader = data.into_reader()?;
+    let input_schema = reader.schema();
+    let schema = detector.result_schema(&input_schema, &passthrough).map_err(|e| to_py_err(py, e))?;
+    let batches = detached(py, move || {
+        let batches = reader.collect::<Result<Vec<RecordBatch>, _>>()?;
+        Ok(detector.detect_all(&input_schema, &batches, &passthrough, first_row)?)
+    })?;
+    PyTable::try_new(batches, schema)?.into_pyarrow(py)
+}
+
+/// Schema of `detect`'s result for an input schema.
+#[pyfunction]
+#[pyo3(signature = (schema, config=None, passthrough=None))]
+fn result_schema<'py>(
+    py: Python<'py>,
+    schema: PySchema,
+    config: Option<&Bound<'py, PyDict>>,
+    passthrough: Option<Vec<String>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let detector = Detector::new(config::detect_config(config)?).map_err(|e| to_py_err(py, e))?;
+    let input: SchemaRef = schema.into_inner();
+    let out = detector
+        .result_schema(&input, &passthrough.unwrap_or_default())
+        .map_err(|e| to_py_err(py, e))?;
+    PySchema::new(out).into_pyarrow(py)
+}
+
+/// The default detection parameters, as a flat dict (the one source of the defaults).
+#[pyfunction]
+fn default_config<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    config::detect_config_to_dict(py, &tightscan_core::DetectConfig::default())
+}
+
+/// Labelled synthetic tightenings: (tightenings, truth) as pyarrow Tables.
+#[pyfunction]
+#[pyo3(signature = (config=None))]
+fn simulate<'py>(
+    py: Python<'py>,
+    config: Option<&Bound<'py, PyDict>>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let cfg = config::simulation_config(config)?;
+    let out = detached(py, move || Ok(sim::simulate(&cfg)?))?;
+    let table = |b: RecordBatch| -> PyResult<Bound<'py, PyAny>> {
+        let schema = b.schema();
+        PyTable::try_new(vec![b], schema)?.into_pyarrow(py)
+    };
+    Ok((table(out.tightenings)?, table(out.truth)?))
+}
+
+/// Threshold h whose in-control ARL is `arl0` (Siegmund's approximation).
+#[pyfunction]
+#[pyo3(signature = (arl0, kappa, two_sided=true))]
+fn cusum_threshold(py: Python<'_>, arl0: f64, kappa: f64, two_sided: bool) -> PyResult<f64> {
+    cusum::cusum_threshold(arl0, kappa, two_sided).map_err(|e| to_py_err(py, e))
+}
+
+/// ARL of the CUSUM for a mean shift (Siegmund's approximation).
+#[pyfunction]
+#[pyo3(signature = (h, kappa, shift=0.0, two_sided=true))]
+fn cusum_arl(h: f64, kappa: f64, shift: f64, two_sided: bool) -> f64 {
+    cusum::cusum_arl(h, kappa, shift, two_sided)
+}
+
+/// Column names, types, units and meanings of the result table.
+#[pyfunction]
+fn result_columns() -> Vec<(&'static str, String, &'static str, &'static str)> {
+    tightscan_core::schema::RESULT_COLUMNS
+        .iter()
+        .map(|(n, t, u, d)| (*n, t.data_type().to_string(), *u, *d))
+        .collect()
+}
+
+#[pymodule(gil_used = false)]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(detect, m)?)?;
+    m.add_function(wrap_pyfunction!(result_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(default_config, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(cusum_threshold, m)?)?;
+    m.add_function(wrap_pyfunction!(cusum_arl, m)?)?;
+    m.add_function(wrap_pyfunction!(result_columns, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("DEBUG_BUILD", cfg!(debug_assertions))?;
+    Ok(())
+}

@@ -1,0 +1,46 @@
+"""tightscan: find friction changes in bolted-joint tightening curves.
+
+>>> import tightscan
+>>> curves, truth = tightscan.simulate(100, seed=3)
+>>> results = tightscan.detect_batch(curves)
+>>> results.column_names[:3]
+['tightening_id', 'status', 'n_samples']
+"""
+
+from __future__ import annotations
+
+import warnings
+
+from . import _core
+from ._api import ScanSummary, cusum_arl, cusum_threshold, detect_batch, read_results, scan_parquet, simulate
+from .config import BlockConfig, CusumConfig, DetectConfig, ElasticZoneConfig
+from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
+
+__version__: str = _core.__version__
+
+if _core.DEBUG_BUILD:  # pragma: no cover - depends on how it was built
+    warnings.warn(
+        "tightscan was built in debug mode and runs many times slower; "
+        "build with `maturin develop --release` (or `make demo`)",
+        RuntimeWarning,
+        stacklevel=2,
+    )
+
+__all__ = [
+    "detect_batch",
+    "scan_parquet",
+    "read_results",
+    "simulate",
+    "cusum_threshold",
+    "cusum_arl",
+    "ScanSummary",
+    "DetectConfig",
+    "CusumConfig",
+    "ElasticZoneConfig",
+    "BlockConfig",
+    "TightscanError",
+    "SchemaError",
+    "InvalidParameterError",
+    "DataFileError",
+    "__version__",
+]

@@ -1,0 +1,341 @@
+"""The Python API: a thin, typed facade over the Rust engine (`tightscan._core`)."""
+
+from __future__ import annotations
+
+import glob
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, Sequence, Union
+
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+
+from . import _core
+from .config import ConfigLike, as_dict
+from .exceptions import DataFileError, SchemaError
+
+if TYPE_CHECKING:
+    import polars
+
+__all__ = [
+    "detect_batch",
+    "scan_parquet",
+    "simulate",
+    "cusum_threshold",
+    "cusum_arl",
+    "ScanSummary",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _is_polars(obj: object) -> bool:
+    return type(obj).__module__.split(".")[0] == "polars" and type(obj).__name__ == "DataFrame"
+
+
+def _passthrough_list(passthrough: Sequence[str] | bool | None, columns: Sequence[str]) -> list[str]:
+    """`True` passes through every column that is not a channel or the id."""
+    if passthrough is None or passthrough is False:
+        return []
+    if passthrough is True:
+        reserved = {"tightening_id", "angle", "torque", "time", "speed", "clamp_force"}
+        return [c for c in columns if c not in reserved]
+    if isinstance(passthrough, str):
+        return [passthrough]
+    return list(passthrough)
+
+
+def detect_batch(
+    data: Any,
+    config: ConfigLike = None,
+    *,
+    passthrough: Sequence[str] | bool | None = None,
+) -> "pa.Table | polars.DataFrame":
+    """Detect friction changes in every tightening of a table.
+
+    ``data`` is anything that speaks the Arrow PyCapsule interface: a pyarrow Table,
+    RecordBatch or RecordBatchReader, a polars DataFrame, a duckdb result. Layout and units
+    follow the data contract (docs/data-contract.md): one row per tightening with list
+    channels ``angle`` [deg] and ``torque`` [Nm], or one row per sample.
+
+    Returns one row per input tightening, in input order: a polars DataFrame for polars input,
+    else a pyarrow Table. A malformed tightening gets a row whose ``status`` says what is wrong;
+    a malformed table raises :class:`SchemaError` naming the column.
+
+    ``passthrough`` copies input columns to the results (``True``: every non-channel column).
+
+    >>> import tightscan
+    >>> curves, truth = tightscan.simulate(200, seed=1)
+    >>> results = tightscan.detect_batch(curves)
+    >>> results.num_rows
+    200
+    >>> sorted(set(results.column("status").to_pylist()))
+    ['ok']
+    """
+    polars_in = _is_polars(data)
+    if not (hasattr(data, "__arrow_c_stream__") or hasattr(data, "__arrow_c_array__")):
+        raise TypeError(
+            f"detect_batch needs an Arrow table (pyarrow, polars, duckdb ...), not {type(data).__name__}"
+        )
+    pass_cols: list[str] = []
+    if passthrough is True:
+        names = data.schema.names if isinstance(data, (pa.Table, pa.RecordBatch)) else getattr(data, "columns", None)
+        if names is None:
+            raise TypeError("passthrough=True needs a pyarrow or polars table; name the columns instead")
+        pass_cols = _passthrough_list(True, list(names))
+    else:
+        pass_cols = _passthrough_list(passthrough, [])
+    result = _core.detect(data, as_dict(config), pass_cols)
+    if polars_in:
+        import polars as pl
+
+        return pl.from_arrow(result)  # type: ignore[return-value]
+    return result
+
+
+def simulate(
+    n: int,
+    *,
+    seed: int = 0,
+    fault_fraction: float | None = None,
+    strategies: Sequence[str] | None = None,
+    fault_kinds: Sequence[str] | None = None,
+    fault_components: Sequence[str] | None = None,
+    magnitude_range: tuple[float, float] | None = None,
+    threads: Sequence[str] | None = None,
+    torque_noise: float | None = None,
+    angle_resolution_deg: float | None = None,
+    sample_rate_hz: float | None = None,
+    with_clamp_force: bool = False,
+    first_id: int = 0,
+) -> tuple[pa.Table, pa.Table]:
+    """Simulate ``n`` labelled tightenings (Rust, parallel, reproducible by ``seed``).
+
+    Returns ``(tightenings, truth)``: the tightenings in the nested contract layout, and per
+    tightening the ground truth (``has_change``, ``fault_kind``, ``magnitude``,
+    ``onset_angle`` ...). Unset parameters take the simulator's defaults.
+    """
+    params: dict[str, Any] = {
+        "n": n,
+        "seed": seed,
+        "fault_fraction": fault_fraction,
+        "strategies": list(strategies) if strategies is not None else None,
+        "fault_kinds": list(fault_kinds) if fault_kinds is not None else None,
+        "fault_components": list(fault_components) if fault_components is not None else None,
+        "magnitude_range": tuple(magnitude_range) if magnitude_range is not None else None,
+        "threads": list(threads) if threads is not None else None,
+        "torque_noise": torque_noise,
+        "angle_resolution_deg": angle_resolution_deg,
+        "sample_rate_hz": sample_rate_hz,
+        "with_clamp_force": with_clamp_force,
+        "first_id": first_id,
+    }
+    return _core.simulate(params)
+
+
+def cusum_threshold(arl0: float, kappa: float, two_sided: bool = True) -> float:
+    """CUSUM threshold h (sigma units) whose in-control ARL is ``arl0``, by Siegmund's
+    approximation (METHODS.md section 2).
+
+    >>> round(cusum_threshold(469.1, 0.5), 2)
+    5.0
+    """
+    return _core.cusum_threshold(arl0, kappa, two_sided)
+
+
+def cusum_arl(h: float, kappa: float, shift: float = 0.0, two_sided: bool = True) -> float:
+    """Average run length of the CUSUM for a mean shift of ``shift`` sigma (Siegmund).
+
+    >>> round(cusum_arl(4.0, 0.5), 1)
+    169.0
+    """
+    return _core.cusum_arl(h, kappa, shift, two_sided)
+
+
+# ---------------------------------------------------------------------------------------------
+# Parquet in, Parquet out
+
+
+@dataclass
+class ScanSummary:
+    """What a scan read and found."""
+
+    destination: str
+    files: int = 0
+    tightenings: int = 0
+    samples: int = 0
+    changes: int = 0
+    seconds: float = 0.0
+    status_counts: dict[str, int] = field(default_factory=dict)
+
+
+def _expand_sources(source: PathLike | Sequence[PathLike]) -> list[str]:
+    items = [source] if isinstance(source, (str, os.PathLike)) else list(source)
+    files: list[str] = []
+    for item in items:
+        text = os.fspath(item)
+        path = Path(text)
+        if path.is_dir():
+            found = sorted(str(p) for p in path.rglob("*.parquet"))
+            if not found:
+                raise DataFileError(f"no .parquet files in directory {text}", text)
+            files.extend(found)
+        elif path.is_file():
+            files.append(text)
+        elif glob.has_magic(text):
+            found = sorted(glob.glob(text, recursive=True))
+            if not found:
+                raise DataFileError(f"no files match {text}", text)
+            files.extend(found)
+        else:
+            raise DataFileError(f"no such file or directory: {text}", text)
+    return files
+
+
+def _open(path: str) -> ds.Dataset:
+    try:
+        return ds.dataset(path, format="parquet")
+    except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as e:
+        raise DataFileError(f"cannot read Parquet file {path}: {e}", path) from e
+
+
+def _batches(path: str, dataset: ds.Dataset, batch_size: int) -> Iterator[pa.RecordBatch]:
+    try:
+        yield from dataset.to_batches(batch_size=batch_size, use_threads=True)
+    except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as e:
+        raise DataFileError(f"cannot read Parquet file {path}: {e}", path) from e
+
+
+def _split_trailing_tightening(batch: pa.RecordBatch) -> tuple[pa.RecordBatch, pa.RecordBatch]:
+    """Long layout: the last tightening of a batch may go on in the next one; keep it back."""
+    ids = batch.column("tightening_id")
+    last = ids[len(ids) - 1]
+    same = pc.is_null(ids) if not last.is_valid else pc.fill_null(pc.equal(ids, last), False)
+    other = pc.indices_nonzero(pc.invert(same))
+    cut = other[len(other) - 1].as_py() + 1 if len(other) else 0
+    return batch.slice(0, cut), batch.slice(cut)
+
+
+class _Progress:
+    """A progress bar on an interactive terminal; nothing otherwise."""
+
+    def __init__(self, total: int, enabled: bool | None) -> None:
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self.bar: Any = None
+        if self.enabled:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+            self.bar = Progress(
+                "[progress.description]{task.description}",
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeRemainingColumn(),
+                transient=True,
+            )
+            self.bar.start()
+            self.task = self.bar.add_task("scanning rows", total=total)
+
+    def advance(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.advance(self.task, n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def scan_parquet(
+    source: PathLike | Sequence[PathLike],
+    destination: PathLike,
+    config: ConfigLike = None,
+    *,
+    passthrough: Sequence[str] | bool | None = None,
+    batch_size: int = 8192,
+    progress: bool | None = None,
+) -> ScanSummary:
+    """Detect friction changes in Parquet files and write the results as Parquet.
+
+    ``source`` is a file, a directory (every ``*.parquet`` below it), a glob, or a list of
+    them. Record batches stream through: memory is bounded by ``batch_size`` rows, not by the
+    dataset. Each batch is analysed in Rust on all cores with the GIL released. A progress bar
+    shows on an interactive terminal (``progress`` forces it on or off).
+
+    Raises :class:`DataFileError` naming a file that is missing or unreadable, and
+    :class:`SchemaError` naming a column that breaks the data contract.
+    """
+    started = time.perf_counter()
+    files = _expand_sources(source)
+    datasets = [(f, _open(f)) for f in files]
+    cfg = as_dict(config)
+    first_schema = datasets[0][1].schema
+    pass_cols = _passthrough_list(passthrough, first_schema.names)
+    out_schema: pa.Schema = _core.result_schema(first_schema, cfg, pass_cols)
+    long_layout = not (
+        pa.types.is_list(first_schema.field("angle").type)
+        or pa.types.is_large_list(first_schema.field("angle").type)
+    )
+    total = sum(d.count_rows() for _, d in datasets)
+    summary = ScanSummary(destination=os.fspath(destination), files=len(files))
+    bar = _Progress(total, progress)
+    seen: set[Any] = set()
+    carry: pa.RecordBatch | None = None
+
+    def run(batch: pa.RecordBatch, writer: pq.ParquetWriter, path: str) -> None:
+        if batch.num_rows == 0:
+            return
+        result = _core.detect(batch, cfg, pass_cols, summary.tightenings)
+        if long_layout:
+            ids = result.column("tightening_id").to_pylist()
+            repeated = seen.intersection(ids)
+            if repeated:
+                raise SchemaError(
+                    f"tightening {next(iter(repeated))!r} appears again after other tightenings in "
+                    f"{path}: stream the long layout grouped by tightening_id, or use detect_batch"
+                )
+            seen.update(ids)
+        if result.schema != out_schema:
+            try:
+                result = result.cast(out_schema)
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
+                raise SchemaError(f"{path} has columns of other types than the first file: {e}") from e
+        writer.write_table(result)
+        summary.tightenings += result.num_rows
+        summary.samples += int(pc.sum(result.column("n_samples")).as_py() or 0)
+        summary.changes += int(pc.sum(pc.cast(pc.fill_null(result.column("change_detected"), False), pa.int64())).as_py() or 0)
+        for item in pc.value_counts(pc.utf8_slice_codeunits(result.column("status"), 0, 64)).to_pylist():
+            code = item["values"].split(":")[0]
+            summary.status_counts[code] = summary.status_counts.get(code, 0) + item["counts"]
+
+    try:
+        with pq.ParquetWriter(os.fspath(destination), out_schema) as writer:
+            for path, dataset in datasets:
+                for batch in _batches(path, dataset, batch_size):
+                    bar.advance(batch.num_rows)
+                    if long_layout:
+                        if carry is not None and carry.num_rows:
+                            batch = pa.Table.from_batches([carry, batch]).combine_chunks().to_batches()[0]
+                        batch, carry = _split_trailing_tightening(batch)
+                    run(batch, writer, path)
+            if carry is not None:
+                run(carry, writer, files[-1])
+    finally:
+        bar.close()
+    summary.seconds = time.perf_counter() - started
+    return summary
+
+
+def read_results(path: PathLike) -> pa.Table:
+    """Reads a results file written by :func:`scan_parquet`."""
+    return pq.read_table(os.fspath(path))
+
+
+def _iter_chunks(n: int, chunk: int) -> Iterable[tuple[int, int]]:
+    start = 0
+    while start < n:
+        yield start, min(chunk, n - start)
+        start += chunk

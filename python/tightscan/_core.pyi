@@ -1,0 +1,25 @@
+"""Type stubs of the Rust extension `tightscan._core` (checked by mypy.stubtest in tests)."""
+
+from typing import Any
+
+import pyarrow as pa
+
+__version__: str
+DEBUG_BUILD: bool
+
+def detect(
+    data: Any,
+    config: dict[str, Any] | None = None,
+    passthrough: list[str] | None = None,
+    first_row: int = 0,
+) -> pa.Table: ...
+def result_schema(
+    schema: Any,
+    config: dict[str, Any] | None = None,
+    passthrough: list[str] | None = None,
+) -> pa.Schema: ...
+def default_config() -> dict[str, Any]: ...
+def simulate(config: dict[str, Any] | None = None) -> tuple[pa.Table, pa.Table]: ...
+def cusum_threshold(arl0: float, kappa: float, two_sided: bool = True) -> float: ...
+def cusum_arl(h: float, kappa: float, shift: float = 0.0, two_sided: bool = True) -> float: ...
+def result_columns() -> list[tuple[str, str, str, str]]: ...

@@ -1,0 +1,203 @@
+"""Command line: `tightscan scan | simulate | demo`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from ._api import ScanSummary, scan_parquet, simulate
+from .config import BlockConfig, CusumConfig, DetectConfig, ElasticZoneConfig
+from .exceptions import TightscanError
+
+SIMULATE_CHUNK = 10_000
+
+
+def _config(args: argparse.Namespace) -> DetectConfig:
+    return DetectConfig(
+        zone=ElasticZoneConfig(),
+        blocks=BlockConfig(),
+        cusum=CusumConfig(kappa=args.kappa, arl0=args.arl0, threshold=args.threshold),
+    )
+
+
+def _add_detect_options(p: argparse.ArgumentParser) -> None:
+    d = CusumConfig()
+    p.add_argument("--kappa", type=float, default=d.kappa, help="CUSUM drift in sigma units (default %(default)s)")
+    p.add_argument("--arl0", type=float, default=d.arl0, help="in-control ARL in blocks that sets h (default %(default)s)")
+    p.add_argument("--threshold", type=float, default=None, help="explicit CUSUM threshold h (overrides --arl0)")
+    p.add_argument("--passthrough", nargs="*", default=None, metavar="COLUMN", help="input columns to copy into the results")
+    p.add_argument("--batch-size", type=int, default=8192, help="rows per streamed batch (default %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def print_summary(summary: ScanSummary, by_strategy: pa.Table | None = None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    t = Table(title=f"tightscan: {summary.destination}", show_header=False)
+    t.add_row("files", f"{summary.files}")
+    t.add_row("tightenings", f"{summary.tightenings:,}")
+    t.add_row("samples", f"{summary.samples:,}")
+    t.add_row("changes found", f"{summary.changes:,}")
+    for code, count in sorted(summary.status_counts.items()):
+        t.add_row(f"status {code}", f"{count:,}")
+    rate = summary.samples / summary.seconds / 1e6 if summary.seconds > 0 else float("nan")
+    t.add_row("time", f"{summary.seconds:.2f} s ({rate:.1f} M samples/s incl. Parquet I/O)")
+    console.print(t)
+    if by_strategy is not None:
+        s = Table(title="by strategy")
+        for name in by_strategy.column_names:
+            s.add_column(name, justify="right")
+        for row in by_strategy.to_pylist():
+            s.add_row(*(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row.values()))
+        console.print(s)
+
+
+def _strategy_table(results: pa.Table, truth: pa.Table | None) -> pa.Table | None:
+    if "strategy" not in results.column_names:
+        return None
+    t = results.select(["tightening_id", "strategy", "change_detected"])
+    t = t.set_column(2, "change_detected", pc.fill_null(t.column("change_detected"), False))
+    if truth is None:
+        g = t.group_by("strategy").aggregate([("tightening_id", "count"), ("change_detected", "sum")])
+        return g.rename_columns(["strategy", "tightenings", "changes_found"])
+    joined = t.join(truth.select(["tightening_id", "has_change"]), "tightening_id")
+    rows = []
+    for strategy in sorted(set(joined.column("strategy").to_pylist())):
+        sub = joined.filter(pc.equal(joined.column("strategy"), strategy))
+        found = sub.column("change_detected").to_numpy(zero_copy_only=False)
+        real = sub.column("has_change").to_numpy(zero_copy_only=False)
+        rows.append(
+            {
+                "strategy": strategy,
+                "tightenings": len(found),
+                "changes_found": int(found.sum()),
+                "true_changes": int(real.sum()),
+                "recall": float(found[real].mean()) if real.any() else float("nan"),
+                "false_alarm_rate": float(found[~real].mean()) if (~real).any() else float("nan"),
+            }
+        )
+    return pa.Table.from_pylist(rows)
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    passthrough: Sequence[str] | bool | None = args.passthrough
+    summary = scan_parquet(
+        args.inputs,
+        args.output,
+        _config(args),
+        passthrough=passthrough,
+        batch_size=args.batch_size,
+        progress=False if args.no_progress else None,
+    )
+    results = pq.read_table(args.output, columns=[c for c in ["tightening_id", "strategy", "change_detected"] if c in pq.read_schema(args.output).names])
+    print_summary(summary, _strategy_table(results, None))
+    return 0
+
+
+def write_simulation(n: int, seed: int, output: str, truth_output: str | None, **kwargs: object) -> None:
+    """Simulates in chunks so that memory stays bounded for millions of tightenings."""
+    writer = truth_writer = None
+    try:
+        for first in range(0, n, SIMULATE_CHUNK):
+            count = min(SIMULATE_CHUNK, n - first)
+            curves, truth = simulate(count, seed=seed, first_id=first, **kwargs)  # type: ignore[arg-type]
+            if writer is None:
+                writer = pq.ParquetWriter(output, curves.schema)
+                if truth_output:
+                    truth_writer = pq.ParquetWriter(truth_output, truth.schema)
+            writer.write_table(curves)
+            if truth_writer is not None:
+                truth_writer.write_table(truth)
+    finally:
+        if writer is not None:
+            writer.close()
+        if truth_writer is not None:
+            truth_writer.close()
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    truth = args.truth or str(Path(args.output).with_name(Path(args.output).stem + "-truth.parquet"))
+    write_simulation(
+        args.n,
+        args.seed,
+        args.output,
+        truth,
+        with_clamp_force=args.clamp_force,
+        fault_fraction=args.fault_fraction,
+    )
+    print(f"wrote {args.n:,} tightenings to {args.output} and their ground truth to {truth}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    out = Path(args.dir)
+    out.mkdir(parents=True, exist_ok=True)
+    curves = out / "tightenings.parquet"
+    truth = out / "truth.parquet"
+    stamp = out / f".dataset-n{args.n}-seed{args.seed}"
+    if not stamp.exists() or not curves.exists() or not truth.exists():
+        print(f"simulating the built-in dataset: {args.n:,} tightenings (seed {args.seed}) -> {curves}")
+        write_simulation(args.n, args.seed, str(curves), str(truth))
+        for old in out.glob(".dataset-*"):
+            old.unlink()
+        stamp.touch()
+    results_path = out / "results.parquet"
+    summary = scan_parquet(curves, results_path, passthrough=["strategy"], progress=False if args.no_progress else None)
+    results = pq.read_table(results_path, columns=["tightening_id", "strategy", "change_detected"])
+    print_summary(summary, _strategy_table(results, pq.read_table(truth)))
+    print(f"results: {results_path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tightscan",
+        description="Find friction changes in bolted-joint tightening curves.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    scan = sub.add_parser("scan", help="detect changes in Parquet files, write results Parquet")
+    scan.add_argument("inputs", nargs="+", help="Parquet files, directories or globs")
+    scan.add_argument("-o", "--output", required=True, help="results Parquet file")
+    _add_detect_options(scan)
+    scan.set_defaults(func=cmd_scan)
+
+    sim = sub.add_parser("simulate", help="write labelled synthetic tightenings as Parquet")
+    sim.add_argument("-n", type=int, required=True, help="number of tightenings")
+    sim.add_argument("-o", "--output", required=True, help="tightenings Parquet file")
+    sim.add_argument("--truth", default=None, help="ground-truth Parquet file (default: OUTPUT-truth.parquet)")
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--fault-fraction", type=float, default=0.5)
+    sim.add_argument("--clamp-force", action="store_true", help="add a clamp_force channel")
+    sim.set_defaults(func=cmd_simulate)
+
+    demo = sub.add_parser("demo", help="scan the built-in dataset and compare with its ground truth")
+    demo.add_argument("-n", type=int, default=20_000, help="tightenings in the built-in dataset (default %(default)s)")
+    demo.add_argument("--seed", type=int, default=2026)
+    demo.add_argument("--dir", default="out/demo", help="where data and results go (default %(default)s)")
+    demo.add_argument("--no-progress", action="store_true")
+    demo.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (TightscanError, OSError) as e:
+        print(f"tightscan: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,1 +1,113 @@
-fn main() {}
+//! Criterion benchmarks of the tightscan kernels.
+//!
+//! Size grid (every input is seeded, so every run measures the same data):
+//!
+//! | group       | bench                 | input                                             | throughput unit     |
+//! |-------------|-----------------------|---------------------------------------------------|---------------------|
+//! | `cusum`     | `update/10000`        | 1e4 N(0, 1) increments, Xoshiro256++ seed 42      | increments          |
+//! | `cusum`     | `update/100000`       | 1e5 N(0, 1) increments, Xoshiro256++ seed 42      | increments          |
+//! | `detect`    | `tightenings/1000`    | `simulate(n = 1000, seed = 7)`, default config    | samples (all rows)  |
+//! | `detect`    | `tightenings/10000`   | `simulate(n = 10000, seed = 7)`, default config   | samples (all rows)  |
+//! | `simulate`  | `tightenings/1000`    | `SimulationConfig { n: 1000, seed: 7, .. }`       | tightenings         |
+//!
+//! The CUSUM uses kappa = 0.5 and the threshold of the default detector (two-sided ARL0 = 3,000
+//! blocks, h ~ 6.4). The recursion keeps running after the first alarm, so every increment
+//! costs the same whether or not the series alarms.
+//!
+//! `detect` and `simulate` run on rayon's global pool (all cores; set `RAYON_NUM_THREADS` to
+//! pin it). A detect sample is one (angle, torque) pair; the throughput counts every sample of
+//! every tightening (from the `angle` list offsets), not only the elastic window.
+//!
+//! Run: `cargo bench -p tightscan-benches` (full), `cargo bench -p tightscan-benches -- --quick`
+//! (short), `cargo test -p tightscan-benches --benches` (each bench once, as a smoke test).
+#![allow(clippy::expect_used)]
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use arrow_array::cast::AsArray;
+use arrow_array::RecordBatch;
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use tightscan_core::cusum::{cusum_threshold, TwoSidedCusum};
+use tightscan_core::simulate::{simulate, SimulationConfig};
+use tightscan_core::{DetectConfig, Detector};
+
+/// CUSUM series lengths.
+const CUSUM_SIZES: [usize; 2] = [10_000, 100_000];
+/// Seed of the CUSUM increments.
+const CUSUM_SEED: u64 = 42;
+/// Tightenings per detect batch.
+const DETECT_SIZES: [usize; 2] = [1_000, 10_000];
+/// Tightenings per simulate call.
+const SIMULATE_SIZE: usize = 1_000;
+/// Seed of the simulated tightenings.
+const SIM_SEED: u64 = 7;
+
+fn normal_increments(n: usize, seed: u64) -> Vec<f64> {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    (0..n).map(|_| StandardNormal.sample(&mut rng)).collect()
+}
+
+fn simulated_batch(n: usize) -> RecordBatch {
+    let cfg = SimulationConfig { n, seed: SIM_SEED, ..SimulationConfig::default() };
+    simulate(&cfg).expect("bench setup: simulate failed").tightenings
+}
+
+/// Total samples of a nested batch: span of the `angle` list offsets.
+fn total_samples(batch: &RecordBatch) -> u64 {
+    let angle = batch.column_by_name("angle").expect("bench setup: no angle column");
+    let offsets = angle.as_list::<i32>().value_offsets();
+    let (first, last) = (offsets.first().copied().unwrap_or(0), offsets.last().copied().unwrap_or(0));
+    u64::try_from(last - first).expect("bench setup: negative offsets")
+}
+
+fn bench_cusum(c: &mut Criterion) {
+    let kappa = 0.5;
+    let h = cusum_threshold(DetectConfig::default().cusum.arl0, kappa, true).expect("bench setup: threshold");
+    let mut group = c.benchmark_group("cusum");
+    for &n in &CUSUM_SIZES {
+        let zs = normal_increments(n, CUSUM_SEED);
+        group.throughput(Throughput::Elements(n as u64));
+        group.bench_with_input(BenchmarkId::new("update", n), &zs, |b, zs| {
+            b.iter(|| {
+                let mut cusum = TwoSidedCusum::new(kappa, h);
+                for &z in black_box(zs.as_slice()) {
+                    black_box(cusum.update(z));
+                }
+                (cusum.alarm(), cusum.max_statistic())
+            });
+        });
+    }
+    group.finish();
+}
+
+fn bench_detect(c: &mut Criterion) {
+    let detector = Detector::new(DetectConfig::default()).expect("bench setup: detector");
+    let mut group = c.benchmark_group("detect");
+    group.sample_size(20).measurement_time(Duration::from_secs(8));
+    for &n in &DETECT_SIZES {
+        let batch = simulated_batch(n);
+        group.throughput(Throughput::Elements(total_samples(&batch)));
+        group.bench_with_input(BenchmarkId::new("tightenings", n), &batch, |b, batch| {
+            b.iter(|| detector.detect(black_box(batch), &[], 0));
+        });
+    }
+    group.finish();
+}
+
+fn bench_simulate(c: &mut Criterion) {
+    let cfg = SimulationConfig { n: SIMULATE_SIZE, seed: SIM_SEED, ..SimulationConfig::default() };
+    let mut group = c.benchmark_group("simulate");
+    group.sample_size(20).measurement_time(Duration::from_secs(8));
+    group.throughput(Throughput::Elements(SIMULATE_SIZE as u64));
+    group.bench_with_input(BenchmarkId::new("tightenings", SIMULATE_SIZE), &cfg, |b, cfg| {
+        b.iter(|| simulate(black_box(cfg)));
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_cusum, bench_detect, bench_simulate);
+criterion_main!(benches);

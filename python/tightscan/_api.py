@@ -74,8 +74,9 @@ def detect_batch(
     >>> results = tightscan.detect_batch(curves)
     >>> results.num_rows
     200
-    >>> sorted(set(results.column("status").to_pylist()))
-    ['ok']
+    >>> statuses = results.column("status").to_pylist()
+    >>> statuses.count("ok") > 180   # the others say why, e.g. 'too_short: ...'
+    True
     """
     polars_in = _is_polars(data)
     if not (hasattr(data, "__arrow_c_stream__") or hasattr(data, "__arrow_c_array__")):

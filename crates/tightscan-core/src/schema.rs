@@ -171,6 +171,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("cusum_threshold", ResultType::Float64, "sigma", "threshold h in use"),
     ("cusum_reference_rate", ResultType::Float64, "Nm/deg", "torque rate of the training window"),
     ("cusum_noise_sd", ResultType::Float64, "Nm", "robust torque noise scale from the training window"),
+    ("cusum_noise_df", ResultType::Float64, "", "degrees of freedom behind cusum_noise_sd"),
     ("cusum_dispersion", ResultType::Float64, "", "spread of standardised training blocks (1 for white noise)"),
     ("cusum_blocks", ResultType::Int64, "", "blocks monitored after the training window"),
     ("cusum_block_angle", ResultType::Float64, "deg", "angle width of one block"),

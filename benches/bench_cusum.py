@@ -1,0 +1,544 @@
+#!/usr/bin/env python3
+"""Benchmark of tightscan's CUSUM detection against numpy and against plain Parquet reading.
+
+One run, one data set (``tightscan.simulate(N, seed=SEED)``), three comparisons:
+
+(a) ``tightscan.detect_batch`` (default config: elastic window, block torque rates, CUSUM) on
+    the in-memory pyarrow table: samples per second, best of ``--repeat`` runs after a warm-up.
+(b) The same algorithm written in vectorised numpy, one Python iteration per tightening with
+    numpy inside (elastic window, 5 % angle trim, equal-angle blocks with least-squares sums by
+    ``np.bincount``, CSDT stop exclusion, pooled training reference, pooled within-block noise
+    scale, dispersion pre-test, two-sided CUSUM by ``cumsum`` + ``minimum.accumulate``). Its
+    alarms are compared with Rust's, tightening by tightening.
+(c) The ratio of (a) to (b).
+(d) ``tightscan.scan_parquet`` of a Parquet file of the same tightenings against reading that
+    file with pyarrow (``pq.read_table``, and iterating ``pyarrow.dataset`` batches as the scan
+    does), for a snappy (pyarrow's default) and an uncompressed file.
+
+A sample is one (angle, torque) pair; every rate counts all samples of all tightenings (the
+``angle`` list offsets), not only the elastic windows. This is a benchmark, not a test: nothing
+fails on time. The figures go to stdout and to ``benches/results/bench_cusum.json``.
+
+Usage: ``.venv/bin/python benches/bench_cusum.py [--n 20000] [--seed 20261121] [--repeat 3]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+
+import tightscan
+from tightscan import _core
+
+RESULTS = Path(__file__).resolve().parent / "results" / "bench_cusum.json"
+
+GOAL_RUST_SAMPLES_PER_S = 100e6
+GOAL_SPEEDUP_VS_NUMPY = 20.0
+GOAL_SCAN_OVER_READ = 1.5
+
+# Constants of crates/tightscan-core/src/detect.rs.
+Z_0999 = 3.090232306
+F64_MIN_POSITIVE = sys.float_info.min
+
+
+# ---------------------------------------------------------------------------------------------
+# Timing
+
+
+class Timing(NamedTuple):
+    best: float  # best wall time [s]
+    runs: list[float]  # every timed run's wall time [s]
+    cores: float  # process CPU time / wall time of the best run (how many cores were busy)
+    out: Any  # the last run's result
+
+
+def best_of(fn: Callable[[], Any], repeat: int, warmup: int = 1) -> Timing:
+    """Best wall time (perf_counter) of ``repeat`` calls after ``warmup`` untimed ones."""
+    out = None
+    for _ in range(warmup):
+        out = fn()
+    runs, cores = [], []
+    for _ in range(repeat):
+        c0, t0 = time.process_time(), time.perf_counter()
+        out = fn()
+        wall = time.perf_counter() - t0
+        runs.append(wall)
+        cores.append((time.process_time() - c0) / wall)
+    i = runs.index(min(runs))
+    return Timing(runs[i], runs, cores[i], out)
+
+
+# ---------------------------------------------------------------------------------------------
+# The algorithm in numpy (mirrors crates/tightscan-core/src/{detect,signal,cusum}.rs)
+
+
+class Params(NamedTuple):
+    start_fraction: float
+    end_fraction: float
+    trim_fraction: float
+    min_samples: int
+    max_blocks: int
+    min_block_samples: int
+    training_fraction: float
+    min_training_blocks: int
+    kappa: float
+    h: float
+
+
+def params_from_defaults() -> Params:
+    d = _core.default_config()
+    h = d["threshold"] if d["threshold"] is not None else tightscan.cusum_threshold(d["arl0"], d["kappa"], True)
+    return Params(
+        d["zone_start_fraction"], d["zone_end_fraction"], d["zone_trim_fraction"], d["zone_min_samples"],
+        d["max_blocks"], d["min_block_samples"], d["training_fraction"], d["min_training_blocks"],
+        d["kappa"], h,
+    )
+
+
+class Row(NamedTuple):
+    """What the numpy version finds for one tightening (None fields: not analysed / no alarm)."""
+
+    ok: bool
+    alarm: bool | None = None
+    max_statistic: float | None = None
+    reference_rate: float | None = None
+    noise_sd: float | None = None
+    blocks: int | None = None
+    alarm_index: int | None = None
+    change_index: int | None = None
+    side: str | None = None
+
+
+FAILED = Row(False)
+
+
+def _seq_sum(x: np.ndarray) -> float:
+    # Left-to-right sum, as Rust's loops add (np.sum adds pairwise, 8 lanes at a time).
+    return float(np.cumsum(x)[-1]) if x.size else 0.0
+
+
+def _first_true(mask: np.ndarray) -> int:
+    """Index of the first True, or len(mask) when there is none."""
+    k = int(mask.argmax()) if mask.size else 0
+    return k if mask.size and mask[k] else mask.size
+
+
+def detect_one(a: np.ndarray, t: np.ndarray, p: Params) -> Row:
+    """One tightening: angle ``a`` and torque ``t`` as float64 arrays."""
+    n = a.size
+    if n == 0 or not (np.isfinite(a).all() and np.isfinite(t).all()):
+        return FAILED
+    if n < p.min_samples or a.min() == a.max():
+        return FAILED
+
+    # Elastic window (signal.rs elastic_window).
+    i_peak = int(t.argmax())  # first maximum, as Rust's strict '>'
+    peak = float(t[i_peak])
+    if peak <= float(t.min()):
+        return FAILED
+    base = float(t[: i_peak + 1].min())
+    rise = peak - base
+    lo = base + p.start_fraction * rise
+    hi = base + p.end_fraction * rise
+    below = np.flatnonzero(t[:i_peak] < lo)
+    start = int(below[-1]) + 1 if below.size else 0
+    end = start + _first_true(t[start:i_peak] >= hi)
+    if end <= start or a[end - 1] <= a[start]:
+        return FAILED
+    a_lo, a_hi = float(a[start]), float(a[end - 1])
+    margin = p.trim_fraction * (a_hi - a_lo)
+    w = a[start:end]
+    start += _first_true(w >= a_lo + margin)
+    w = a[start:end]
+    keep = np.flatnonzero(w <= a_hi - margin)
+    end = start + int(keep[-1]) + 1 if keep.size else start
+    length = end - start
+    if length < p.min_samples or a[end - 1] <= a[start]:
+        return FAILED
+
+    # Equal-angle blocks and their least-squares sums (signal.rs block_stats).
+    nb = min(length // p.min_block_samples, p.max_blocks)
+    if nb < p.min_training_blocks + 2:
+        return FAILED
+    wa, wt = a[start:end], t[start:end]
+    a0, t0 = float(wa[0]), float(wt[0])
+    width = (float(wa[-1]) - a0) / nb
+    x = wa - a0
+    b = (x * (1.0 / width)).astype(np.int64)  # truncation towards zero, as `as isize`
+    np.clip(b, 0, nb - 1, out=b)
+    xl = x - b * width
+    y = wt - t0
+    cnt = np.bincount(b, minlength=nb).astype(np.float64)
+    sx = np.bincount(b, xl, nb)
+    sy = np.bincount(b, y, nb)
+    sxx = np.bincount(b, xl * xl, nb)
+    sxy = np.bincount(b, xl * y, nb)
+    syy = np.bincount(b, y * y, nb)
+
+    # CSDT stops: runs of unchanged angle 10x the mean run (signal.rs stop_ranges).
+    change = np.flatnonzero(wa[1:] != wa[:-1]) + 1
+    runs = change.size + 1
+    stop_len = max((10 * length) // runs, 10)
+    run_start = np.concatenate(([0], change))
+    run_end = np.concatenate((change, [length]))
+    stops = []
+    for r in np.flatnonzero(run_end - run_start >= stop_len):
+        i, j = int(run_start[r]), int(run_end[r])
+        k = j + _first_true(wt[j:] >= wt[i])
+        stops.append((float(wa[i]) - a0, float(wa[min(k, length - 1)]) - a0))
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sxx_c = sxx - sx * sx / cnt
+        usable_mask = (cnt >= 3) & (sxx_c > 1e-9 * width * width)
+    if stops:
+        blk = np.arange(nb, dtype=np.float64)
+        lo_b, hi_b = blk * width, (blk + 1) * width
+        for s0, s1 in stops:
+            usable_mask &= ~((s0 < hi_b) & (s1 >= lo_b))
+    usable = np.flatnonzero(usable_mask)
+    n_use = usable.size
+    n_train = max(math.ceil(p.training_fraction * n_use), p.min_training_blocks)
+    if n_use < n_train + 2:
+        return FAILED
+
+    # Per-block slope and residual sum of squares, usable blocks only.
+    nu, sxu, syu = cnt[usable], sx[usable], sy[usable]
+    sxxu, sxyu, syyu = sxx[usable], sxy[usable], syy[usable]
+    sxx_cu = sxx_c[usable]
+    sxy_cu = sxyu - sxu * syu / nu
+    slope = sxy_cu / sxx_cu
+    rss = np.maximum(syyu - syu * syu / nu - sxy_cu * sxy_cu / sxx_cu, 0.0)
+
+    # Reference: pooled slope of the training blocks, in window coordinates.
+    tr = slice(0, n_train)
+    o = usable[tr] * width
+    ntr, sxtr = nu[tr], sxu[tr]
+    pn = _seq_sum(ntr)
+    psx = _seq_sum(sxtr + ntr * o)
+    psy = _seq_sum(syu[tr])
+    psxx = _seq_sum(sxxu[tr] + 2.0 * o * sxtr + ntr * o * o)
+    psxy = _seq_sum(sxyu[tr] + o * syu[tr])
+    reference = (psxy - psx * psy / pn) / (psxx - psx * psx / pn)
+
+    # Noise scale: pooled within-block residual variance, blocks above 20x the median left out.
+    dof = np.maximum(nu - 2.0, 1.0)
+    var_b = rss / dof
+    mid = n_use // 2
+    median_var = float(np.partition(var_b, mid)[mid])
+    kept = var_b <= 20.0 * median_var
+    rss_tot, df = _seq_sum(rss[kept]), _seq_sum(dof[kept])
+    rise_sd = float(t.max()) - t0
+    noise_sd = max(math.sqrt(rss_tot / max(df, 1.0)), 1e-6 * max(abs(rise_sd), F64_MIN_POSITIVE))
+
+    # z-scores, dispersion pre-test on the training blocks.
+    z = (slope - reference) * np.sqrt(sxx_cu) / noise_sd
+    ztr = z[tr]
+    sum_z2 = _seq_sum(ztr * ztr)
+    k = float(n_train)
+    c = 2.0 / (9.0 * k)
+    q = 1.0 - c + Z_0999 * math.sqrt(c)
+    dispersion = math.sqrt(sum_z2 / k)
+    inflate = dispersion if sum_z2 > k * (q * q * q) else 1.0
+    zm = z[n_train:] / inflate
+
+    # Two-sided CUSUM: S_t = C_t - min(0, min_{s<=t} C_s), C = cumsum(+-z - kappa).
+    cp = np.cumsum(zm - p.kappa)
+    sp = cp - np.minimum(np.minimum.accumulate(cp), 0.0)
+    cn = np.cumsum(-zm - p.kappa)
+    sn = cn - np.minimum(np.minimum.accumulate(cn), 0.0)
+    max_stat = max(float(sp.max()), float(sn.max()), 0.0)
+    up, down = _first_true(sp > p.h), _first_true(sn > p.h)
+    monitored = zm.size
+    if min(up, down) >= monitored:
+        return Row(True, False, max_stat, reference, noise_sd * inflate, monitored)
+    step, s, side = (up, sp, "increase") if up <= down else (down, sn, "decrease")
+    zeros = np.flatnonzero(s[: step + 1] == 0.0)
+    change_step = int(zeros[-1]) + 1 if zeros.size else 0
+    alarm_blk = int(usable[n_train + step])
+    change_blk = int(usable[n_train + change_step])
+    alarm_index = start + int(np.flatnonzero(b == alarm_blk)[-1])
+    change_index = start + int(np.flatnonzero(b == change_blk)[0])
+    return Row(True, True, max_stat, reference, noise_sd * inflate, monitored, alarm_index, change_index, side)
+
+
+def detect_numpy(table: pa.Table, p: Params) -> list[Row]:
+    """Python loop over tightenings, numpy inside. Includes the float32 -> float64 conversion."""
+    angle = table.column("angle").combine_chunks()
+    torque = table.column("torque").combine_chunks()
+    offsets = angle.offsets.to_numpy()
+    a_all = angle.values.to_numpy(zero_copy_only=False).astype(np.float64)
+    t_all = torque.values.to_numpy(zero_copy_only=False).astype(np.float64)
+    if not np.array_equal(offsets, torque.offsets.to_numpy()):
+        raise ValueError("benchmark data: angle and torque lists differ in length")
+    rows = []
+    for i in range(len(offsets) - 1):
+        s, e = offsets[i], offsets[i + 1]
+        rows.append(detect_one(a_all[s:e], t_all[s:e], p))
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# Comparison of the numpy rows with the Rust results
+
+
+def compare(rust: pa.Table, rows: list[Row]) -> dict[str, Any]:
+    status = rust.column("status").to_pylist()
+    detected = rust.column("change_detected").to_pylist()
+    max_stat = rust.column("cusum_max_statistic").to_pylist()
+    ref = rust.column("cusum_reference_rate").to_pylist()
+    alarm_idx = rust.column("cusum_alarm_index").to_pylist()
+    change_idx = rust.column("cusum_change_index").to_pylist()
+    side = rust.column("cusum_side").to_pylist()
+    n = len(rows)
+    same_status = same_detect = both_ok = same_alarm_row = alarms_both = 0
+    rust_alarms = numpy_alarms = 0
+    only_rust = only_numpy = 0
+    rel_err_max, rel_err_ref = [], []
+    for i, r in enumerate(rows):
+        rust_ok = status[i] == "ok"
+        same_status += rust_ok == r.ok
+        rd = bool(detected[i]) if rust_ok else False
+        nd = bool(r.alarm) if r.ok else False
+        rust_alarms += rd
+        numpy_alarms += nd
+        same_detect += rd == nd
+        only_rust += rd and not nd
+        only_numpy += nd and not rd
+        if rust_ok and r.ok:
+            both_ok += 1
+            rel_err_max.append(abs(max_stat[i] - r.max_statistic) / max(abs(max_stat[i]), 1e-12))
+            rel_err_ref.append(abs(ref[i] - r.reference_rate) / max(abs(ref[i]), 1e-300))
+            if rd and nd:
+                alarms_both += 1
+                same_alarm_row += (
+                    alarm_idx[i] == r.alarm_index and change_idx[i] == r.change_index and side[i] == r.side
+                )
+    return {
+        "tightenings": n,
+        "status_ok_agreement": same_status / n,
+        "change_detected_agreement": same_detect / n,
+        "rust_alarms": rust_alarms,
+        "numpy_alarms": numpy_alarms,
+        "alarm_only_in_rust": only_rust,
+        "alarm_only_in_numpy": only_numpy,
+        "alarms_in_both": alarms_both,
+        "alarm_and_change_index_and_side_equal": same_alarm_row,
+        "analysed_by_both": both_ok,
+        "max_statistic_rel_err_max": max(rel_err_max) if rel_err_max else None,
+        "max_statistic_rel_err_median": float(np.median(rel_err_max)) if rel_err_max else None,
+        "reference_rate_rel_err_max": max(rel_err_ref) if rel_err_ref else None,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Parquet: scan versus read
+
+
+def parquet_figures(table: pa.Table, samples: int, repeat: int, tmp: Path) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    batch_size = 8192  # scan_parquet's default
+    for compression in ("snappy", "none"):
+        src = tmp / f"tightenings-{compression}.parquet"
+        dst = tmp / f"results-{compression}.parquet"
+        pq.write_table(table, src, compression=compression)
+
+        def read_table() -> int:
+            return pq.read_table(src).num_rows
+
+        def read_batches() -> int:
+            return sum(b.num_rows for b in ds.dataset(src, format="parquet").to_batches(batch_size=batch_size))
+
+        def scan() -> int:
+            return tightscan.scan_parquet(src, dst, progress=False).tightenings
+
+        t_read_table = best_of(read_table, repeat).best
+        t_read_batches = best_of(read_batches, repeat).best
+        t_scan, scan_times, scan_cores, rows = best_of(scan, repeat)
+        if rows != table.num_rows:
+            raise RuntimeError(f"scan_parquet reported {rows} rows, expected {table.num_rows}")
+
+        # Breakdown: detection alone on the batches the scan reads, and writing the results.
+        batches = list(ds.dataset(src, format="parquet").to_batches(batch_size=batch_size))
+        t_detect_batches, _, _, results = best_of(lambda: [_core.detect(b, None, [], 0) for b in batches], repeat)
+        res_table = pa.Table.from_batches([rb for r in results for rb in r.to_batches()])
+
+        def write() -> None:
+            pq.write_table(res_table, tmp / "write-only.parquet")
+
+        t_write = best_of(write, repeat).best
+        t_read = min(t_read_table, t_read_batches)
+        out[compression] = {
+            "file_bytes": src.stat().st_size,
+            "read_table_s": t_read_table,
+            "read_batches_s": t_read_batches,
+            "scan_parquet_s": t_scan,
+            "scan_parquet_runs_s": scan_times,
+            "scan_parquet_cores_busy": scan_cores,
+            "scan_over_read_table": t_scan / t_read_table,
+            "scan_over_read_batches": t_scan / t_read_batches,
+            "scan_over_fastest_read": t_scan / t_read,
+            "scan_samples_per_s": samples / t_scan,
+            "breakdown_detect_on_read_batches_s": t_detect_batches,
+            "breakdown_write_results_s": t_write,
+            "breakdown_unexplained_s": t_scan - t_read_batches - t_detect_batches - t_write,
+        }
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def fmt_rate(x: float) -> str:
+    return f"{x / 1e6:8.1f} M samples/s"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=20_000, help="tightenings to simulate (default 20000)")
+    ap.add_argument("--seed", type=int, default=20261121, help="simulation seed")
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs per figure; the best counts (default 3)")
+    ap.add_argument("--json", type=Path, default=RESULTS, help=f"where to write the figures (default {RESULTS})")
+    args = ap.parse_args()
+    if _core.DEBUG_BUILD:
+        print("warning: tightscan._core is a debug build; run `make build` for release figures", file=sys.stderr)
+
+    load_before = os.getloadavg()
+    if load_before[0] > 0.5:
+        print(f"warning: load average {load_before[0]:.2f} before the run: other processes compete for the "
+              f"{os.cpu_count()} CPUs and the figures will be low", file=sys.stderr)
+    print(f"simulating {args.n} tightenings (seed {args.seed}) ...", flush=True)
+    t0 = time.perf_counter()
+    table, _truth = tightscan.simulate(args.n, seed=args.seed)
+    t_sim = time.perf_counter() - t0
+    table = table.combine_chunks()
+    offsets = table.column("angle").chunk(0).offsets
+    samples = int(offsets[-1].as_py() - offsets[0].as_py())
+    print(f"  {samples:,} samples ({samples / args.n:.0f} per tightening) in {t_sim:.2f} s", flush=True)
+
+    # (a) Rust
+    print("timing detect_batch ...", flush=True)
+    t_rust, rust_runs, rust_cores, rust = best_of(lambda: tightscan.detect_batch(table), args.repeat)
+    rust_rate = samples / t_rust
+
+    # (b) numpy (warm-up on a slice: the full run takes seconds)
+    print("timing the numpy version ...", flush=True)
+    p = params_from_defaults()
+    detect_numpy(table.slice(0, min(args.n, 500)), p)
+    t_np, np_runs, np_cores, rows = best_of(lambda: detect_numpy(table, p), args.repeat, warmup=0)
+    np_rate = samples / t_np
+    agreement = compare(rust, rows)
+
+    # (d) Parquet
+    print("timing scan_parquet and pyarrow reads ...", flush=True)
+    with tempfile.TemporaryDirectory(prefix="tightscan-bench-") as tmp:
+        parquet = parquet_figures(table, samples, args.repeat, Path(tmp))
+
+    speedup = t_np / t_rust
+    snappy = parquet["snappy"]
+    status_codes: dict[str, int] = {}
+    for item in pc.value_counts(rust.column("status")).to_pylist():
+        code = item["values"].split(":")[0]
+        status_codes[code] = status_codes.get(code, 0) + item["counts"]
+
+    line = "-" * 78
+    print()
+    print(line)
+    print(f"tightscan CUSUM benchmark  N = {args.n:,} tightenings, {samples:,} samples, "
+          f"{os.cpu_count()} CPUs, best of {args.repeat}")
+    print(f"load average before the run {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f} "
+          f"(1 min; the run itself adds up to {os.cpu_count()})")
+    print(line)
+    print(f"(a) Rust detect_batch          {t_rust * 1e3:9.1f} ms  {fmt_rate(rust_rate)}  ({rust_cores:.2f} cores busy)")
+    print(f"(b) numpy, loop per tightening {t_np * 1e3:9.1f} ms  {fmt_rate(np_rate)}  ({np_cores:.2f} cores busy)")
+    print(f"(c) Rust / numpy speed-up      {speedup:9.1f} x")
+    print(f"    statuses (Rust): {status_codes}")
+    print(f"    numpy vs Rust: change_detected agrees on {agreement['change_detected_agreement']:.2%} "
+          f"of tightenings ({agreement['rust_alarms']} Rust alarms, {agreement['numpy_alarms']} numpy; "
+          f"{agreement['alarm_only_in_rust']} only Rust, {agreement['alarm_only_in_numpy']} only numpy)")
+    print(f"                   status ok/not-ok agrees on {agreement['status_ok_agreement']:.2%}; "
+          f"alarm index, change index and side equal on {agreement['alarm_and_change_index_and_side_equal']}"
+          f"/{agreement['alarms_in_both']} common alarms; max statistic rel. error max "
+          f"{agreement['max_statistic_rel_err_max']:.1e}")
+    print("(d) Parquet                     snappy        none")
+    for key, label in [
+        ("file_bytes", "file size [MB]"),
+        ("read_table_s", "pq.read_table [ms]"),
+        ("read_batches_s", "dataset.to_batches [ms]"),
+        ("scan_parquet_s", "scan_parquet [ms]"),
+        ("scan_over_read_table", "scan / read_table"),
+        ("scan_over_read_batches", "scan / to_batches"),
+        ("breakdown_detect_on_read_batches_s", "  of which detect [ms]"),
+        ("breakdown_write_results_s", "  of which write [ms]"),
+        ("breakdown_unexplained_s", "  of which other [ms]"),
+    ]:
+        vals = [parquet[c][key] for c in ("snappy", "none")]
+        if key == "file_bytes":
+            cells = [f"{v / 1e6:11.1f}" for v in vals]
+        elif key.endswith("_s"):
+            cells = [f"{v * 1e3:11.1f}" for v in vals]
+        else:
+            cells = [f"{v:11.2f}" for v in vals]
+        print(f"    {label:<27}{cells[0]} {cells[1]}")
+    print(line)
+    worst_scan = max(parquet[c]["scan_over_fastest_read"] for c in ("snappy", "none"))
+    goals = {
+        "rust_samples_per_s": (rust_rate >= GOAL_RUST_SAMPLES_PER_S, f">= {GOAL_RUST_SAMPLES_PER_S / 1e6:.0f} M samples/s", f"{rust_rate / 1e6:.1f} M"),
+        "speedup_vs_numpy": (speedup >= GOAL_SPEEDUP_VS_NUMPY, f">= {GOAL_SPEEDUP_VS_NUMPY:.0f}x numpy", f"{speedup:.1f}x"),
+        "scan_over_read": (worst_scan <= GOAL_SCAN_OVER_READ, f"scan <= {GOAL_SCAN_OVER_READ}x fastest read (worst file)", f"{worst_scan:.2f}x"),
+    }
+    print("goals:")
+    for name, (met, goal, value) in goals.items():
+        print(f"    {'met   ' if met else 'MISSED'}  {goal:<45} {value}")
+    print(line)
+
+    record = {
+        "timestamp": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "n_tightenings": args.n,
+        "seed": args.seed,
+        "samples": samples,
+        "repeat": args.repeat,
+        "cpus": os.cpu_count(),
+        "load_average_before": load_before,
+        "load_average_after": os.getloadavg(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "pyarrow": pa.__version__,
+        "tightscan": getattr(_core, "__version__", None),
+        "simulate_s": t_sim,
+        "rust_detect_batch_s": t_rust,
+        "rust_detect_batch_runs_s": rust_runs,
+        "rust_samples_per_s": rust_rate,
+        "rust_cores_busy": rust_cores,
+        "numpy_s": t_np,
+        "numpy_runs_s": np_runs,
+        "numpy_samples_per_s": np_rate,
+        "numpy_cores_busy": np_cores,
+        "speedup_rust_over_numpy": speedup,
+        "rust_status_counts": status_codes,
+        "agreement": agreement,
+        "parquet": parquet,
+        "goals": {k: {"met": v[0], "goal": v[1], "value": v[2]} for k, v in goals.items()},
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(record, indent=2) + "\n")
+    print(f"figures written to {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -23,3 +23,15 @@ def simulate(config: dict[str, Any] | None = None) -> tuple[pa.Table, pa.Table]:
 def cusum_threshold(arl0: float, kappa: float, two_sided: bool = True) -> float: ...
 def cusum_arl(h: float, kappa: float, shift: float = 0.0, two_sided: bool = True) -> float: ...
 def result_columns() -> list[tuple[str, str, str, str]]: ...
+
+__all__ = [
+    "DEBUG_BUILD",
+    "__version__",
+    "cusum_arl",
+    "cusum_threshold",
+    "default_config",
+    "detect",
+    "result_columns",
+    "result_schema",
+    "simulate",
+]

@@ -9,6 +9,14 @@
 //! | `detect`    | `tightenings/1000`    | `simulate(n = 1000, seed = 7)`, default config    | samples (all rows)  |
 //! | `detect`    | `tightenings/10000`   | `simulate(n = 10000, seed = 7)`, default config   | samples (all rows)  |
 //! | `simulate`  | `tightenings/1000`    | `SimulationConfig { n: 1000, seed: 7, .. }`       | tightenings         |
+//! | `stages`    | see below             | `simulate(n = 1000, seed = 7)`, one thread        | samples (all rows)  |
+//!
+//! `stages` splits one tightening's analysis into the public building blocks `Detector::detect`
+//! runs, each over all 1,000 tightenings on the calling thread, so that their costs per sample
+//! add up against `stages/detect_1_thread` (the whole detector in a one-thread rayon pool):
+//! `validate` (the NaN/inf scan of all four channels, as `detect` does it), `elastic_window`,
+//! `block_stats` and `stop_ranges` (on the windows found), and `torque_max` (one plain pass of
+//! max over the torque, the cost of each extra whole-curve pass).
 //!
 //! The CUSUM uses kappa = 0.5 and the threshold of the default detector (two-sided ARL0 = 3,000
 //! blocks, h ~ 6.4). The recursion keeps running after the first alarm, so every increment
@@ -32,6 +40,8 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use tightscan_core::cusum::{cusum_threshold, TwoSidedCusum};
+use tightscan_core::input::{ChannelRow, Samples, TighteningTable};
+use tightscan_core::signal::{block_count, block_stats, elastic_window, stop_ranges, Blocks, ElasticWindow};
 use tightscan_core::simulate::{simulate, SimulationConfig};
 use tightscan_core::{DetectConfig, Detector};
 
@@ -109,5 +119,91 @@ fn bench_simulate(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_cusum, bench_detect, bench_simulate);
+/// The f32 samples of `row` of `column`, or `None` for a null row.
+fn f32_row<'a>(column: &tightscan_core::input::ChannelColumn<'a>, row: usize) -> Option<Samples<'a>> {
+    match column.row(row) {
+        ChannelRow::Present { samples, .. } => Some(samples),
+        ChannelRow::Null => None,
+    }
+}
+
+fn as_f32<'a>(s: Samples<'a>) -> &'a [f32] {
+    match s {
+        Samples::F32(v) => v,
+        Samples::F64(_) => panic!("bench setup: simulate gives float32 channels"),
+    }
+}
+
+fn bench_stages(c: &mut Criterion) {
+    let batch = simulated_batch(DETECT_SIZES[0]);
+    let samples = total_samples(&batch);
+    let table = TighteningTable::new(&batch).expect("bench setup: table view");
+    let config = DetectConfig::default();
+    // Every channel of every row (angle, torque, then the optional ones), as detect checks them.
+    let rows: Vec<Vec<Samples<'_>>> = (0..table.n_rows)
+        .map(|i| {
+            std::iter::once(&table.angle)
+                .chain(std::iter::once(&table.torque))
+                .chain(table.optional.iter())
+                .filter_map(|col| f32_row(col, i))
+                .collect()
+        })
+        .collect();
+    let curves: Vec<(&[f32], &[f32])> = rows.iter().map(|r| (as_f32(r[0]), as_f32(r[1]))).collect();
+    let windows: Vec<(usize, ElasticWindow, usize)> = curves
+        .iter()
+        .enumerate()
+        .filter_map(|(i, (a, t))| {
+            let w = elastic_window(a, t, &config.zone).ok()?;
+            let nb = block_count(w.end - w.start, &config.blocks);
+            (nb >= config.blocks.min_training_blocks + 2).then_some((i, w, nb))
+        })
+        .collect();
+    let detector = Detector::new(config.clone()).expect("bench setup: detector");
+    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("bench setup: thread pool");
+
+    let mut group = c.benchmark_group("stages");
+    group.throughput(Throughput::Elements(samples));
+    group.bench_function("validate", |b| {
+        b.iter(|| rows.iter().map(|r| r.iter().map(|s| s.non_finite_count()).sum::<usize>()).sum::<usize>());
+    });
+    group.bench_function("elastic_window", |b| {
+        b.iter(|| curves.iter().filter(|(a, t)| elastic_window(a, t, black_box(&config.zone)).is_ok()).count());
+    });
+    group.bench_function("torque_max", |b| {
+        b.iter(|| {
+            curves.iter().map(|(_, t)| t.iter().fold(f64::NEG_INFINITY, |m, &x| m.max(f64::from(x)))).sum::<f64>()
+        });
+    });
+    group.bench_function("block_stats", |b| {
+        let mut blocks = Blocks::default();
+        b.iter(|| {
+            let mut n = 0;
+            for &(i, w, nb) in &windows {
+                let (a, t) = curves[i];
+                block_stats(a, t, w, nb, &mut blocks);
+                n += blocks.stats.len();
+            }
+            n
+        });
+    });
+    group.bench_function("stop_ranges", |b| {
+        let mut stops = Vec::new();
+        b.iter(|| {
+            let mut n = 0;
+            for &(i, w, _) in &windows {
+                let (a, t) = curves[i];
+                stop_ranges(a, t, w, &mut stops);
+                n += stops.len();
+            }
+            n
+        });
+    });
+    group.bench_function("detect_1_thread", |b| {
+        b.iter(|| one_thread.install(|| detector.detect(black_box(&batch), &[], 0)));
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_cusum, bench_detect, bench_simulate, bench_stages);
 criterion_main!(benches);

@@ -19,7 +19,7 @@ A sample is one (angle, torque) pair; every rate counts all samples of all tight
 ``angle`` list offsets), not only the elastic windows. This is a benchmark, not a test: nothing
 fails on time. The figures go to stdout and to ``benches/results/bench_cusum.json``.
 
-Usage: ``.venv/bin/python benches/bench_cusum.py [--n 20000] [--seed 20261121] [--repeat 3]``
+Usage: ``.venv/bin/python benches/bench_cusum.py [--n 20000] [--seed 20261121] [--repeat 3] [--parquet-repeat 5]``
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ import json
 import math
 import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -241,18 +242,18 @@ def detect_one(a: np.ndarray, t: np.ndarray, p: Params) -> Row:
     median_var = float(np.partition(var_b, mid)[mid])
     kept = var_b <= 20.0 * median_var
     rss_tot, df = _seq_sum(rss[kept]), _seq_sum(dof[kept])
-    rise_sd = float(t.max()) - t0
-    noise_sd = max(math.sqrt(rss_tot / max(df, 1.0)), 1e-6 * max(abs(rise_sd), F64_MIN_POSITIVE))
+    rise_to_peak = float(t.max()) - t0
+    noise_sd = max(math.sqrt(rss_tot / max(df, 1.0)), 1e-6 * max(abs(rise_to_peak), F64_MIN_POSITIVE))
 
     # z-scores, dispersion pre-test on the training blocks.
     z = (slope - reference) * np.sqrt(sxx_cu) / noise_sd
     ztr = z[tr]
     sum_z2 = _seq_sum(ztr * ztr)
-    k = float(n_train)
-    c = 2.0 / (9.0 * k)
-    q = 1.0 - c + Z_0999 * math.sqrt(c)
-    dispersion = math.sqrt(sum_z2 / k)
-    inflate = dispersion if sum_z2 > k * (q * q * q) else 1.0
+    kf = float(n_train)
+    c = 2.0 / (9.0 * kf)
+    q = 1.0 - c + Z_0999 * math.sqrt(c)  # Wilson-Hilferty chi-square(kf) quantile at 0.999
+    dispersion = math.sqrt(sum_z2 / kf)
+    inflate = dispersion if sum_z2 > kf * (q * q * q) else 1.0
     zm = z[n_train:] / inflate
 
     # Two-sided CUSUM: S_t = C_t - min(0, min_{s<=t} C_s), C = cumsum(+-z - kappa).
@@ -357,7 +358,7 @@ def parquet_figures(table: pa.Table, samples: int, repeat: int, tmp: Path) -> di
         pq.write_table(table, src, compression=compression)
 
         def read_table() -> int:
-            return pq.read_table(src).num_rows
+            return int(pq.read_table(src).num_rows)
 
         def read_batches() -> int:
             return sum(b.num_rows for b in ds.dataset(src, format="parquet").to_batches(batch_size=batch_size))
@@ -402,6 +403,42 @@ def parquet_figures(table: pa.Table, samples: int, repeat: int, tmp: Path) -> di
 # ---------------------------------------------------------------------------------------------
 
 
+def cpu_busy(seconds: float = 1.0) -> float | None:
+    """Share of all CPUs busy over ``seconds`` (from /proc/stat), before the benchmark starts."""
+    def snap() -> tuple[int, int]:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:]]
+        return sum(v), v[3] + v[4]  # total, idle + iowait
+
+    try:
+        t0, i0 = snap()
+        time.sleep(seconds)
+        t1, i1 = snap()
+    except (OSError, ValueError, IndexError):
+        return None
+    return 1.0 - (i1 - i0) / max(t1 - t0, 1)
+
+
+def single_thread_worker(n: int, seed: int, repeat: int) -> None:
+    """Child process (RAYON_NUM_THREADS=1): times detect_batch on the same data, prints JSON."""
+    table, _ = tightscan.simulate(n, seed=seed)
+    table = table.combine_chunks()
+    timing = best_of(lambda: tightscan.detect_batch(table), repeat)
+    print(json.dumps({"best": timing.best, "runs": timing.runs, "cores": timing.cores}))
+
+
+def time_single_thread(n: int, seed: int, repeat: int) -> dict[str, Any] | None:
+    """detect_batch on one rayon thread, in a child process (the pool is fixed at first use)."""
+    cmd = [sys.executable, os.path.abspath(__file__), "--n", str(n), "--seed", str(seed),
+           "--repeat", str(repeat), "--single-thread-worker"]
+    proc = subprocess.run(cmd, env={**os.environ, "RAYON_NUM_THREADS": "1"}, capture_output=True, text=True)
+    if proc.returncode != 0:
+        print(f"warning: single-thread run failed: {proc.stderr.strip()[-500:]}", file=sys.stderr)
+        return None
+    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return result
+
+
 def fmt_rate(x: float) -> str:
     return f"{x / 1e6:8.1f} M samples/s"
 
@@ -411,15 +448,21 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=20_000, help="tightenings to simulate (default 20000)")
     ap.add_argument("--seed", type=int, default=20261121, help="simulation seed")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per figure; the best counts (default 3)")
+    ap.add_argument("--parquet-repeat", type=int, default=5,
+                    help="timed runs per Parquet figure (default 5: file reads vary more, with page faults)")
     ap.add_argument("--json", type=Path, default=RESULTS, help=f"where to write the figures (default {RESULTS})")
+    ap.add_argument("--single-thread-worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.single_thread_worker:
+        single_thread_worker(args.n, args.seed, args.repeat)
+        return 0
     if _core.DEBUG_BUILD:
         print("warning: tightscan._core is a debug build; run `make build` for release figures", file=sys.stderr)
 
-    load_before = os.getloadavg()
-    if load_before[0] > 0.5:
-        print(f"warning: load average {load_before[0]:.2f} before the run: other processes compete for the "
-              f"{os.cpu_count()} CPUs and the figures will be low", file=sys.stderr)
+    busy_before = cpu_busy()
+    if busy_before is not None and busy_before > 0.10:
+        print(f"warning: {busy_before:.0%} of the CPUs were busy before the run: other processes compete "
+              f"and the figures will be low", file=sys.stderr)
     print(f"simulating {args.n} tightenings (seed {args.seed}) ...", flush=True)
     t0 = time.perf_counter()
     table, _truth = tightscan.simulate(args.n, seed=args.seed)
@@ -433,6 +476,7 @@ def main() -> int:
     print("timing detect_batch ...", flush=True)
     t_rust, rust_runs, rust_cores, rust = best_of(lambda: tightscan.detect_batch(table), args.repeat)
     rust_rate = samples / t_rust
+    single = time_single_thread(args.n, args.seed, args.repeat)
 
     # (b) numpy (warm-up on a slice: the full run takes seconds)
     print("timing the numpy version ...", flush=True)
@@ -445,7 +489,7 @@ def main() -> int:
     # (d) Parquet
     print("timing scan_parquet and pyarrow reads ...", flush=True)
     with tempfile.TemporaryDirectory(prefix="tightscan-bench-") as tmp:
-        parquet = parquet_figures(table, samples, args.repeat, Path(tmp))
+        parquet = parquet_figures(table, samples, args.parquet_repeat, Path(tmp))
 
     speedup = t_np / t_rust
     snappy = parquet["snappy"]
@@ -458,13 +502,17 @@ def main() -> int:
     print()
     print(line)
     print(f"tightscan CUSUM benchmark  N = {args.n:,} tightenings, {samples:,} samples, "
-          f"{os.cpu_count()} CPUs, best of {args.repeat}")
-    print(f"load average before the run {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f} "
-          f"(1 min; the run itself adds up to {os.cpu_count()})")
+          f"{os.cpu_count()} CPUs, best of {args.repeat} ({args.parquet_repeat} for Parquet)")
+    if busy_before is not None:
+        print(f"CPUs busy with other work just before the run: {busy_before:.0%}")
     print(line)
     print(f"(a) Rust detect_batch          {t_rust * 1e3:9.1f} ms  {fmt_rate(rust_rate)}  ({rust_cores:.2f} cores busy)")
+    if single is not None:
+        print(f"    same, on 1 rayon thread    {single['best'] * 1e3:9.1f} ms  {fmt_rate(samples / single['best'])}"
+              f"  (RAYON_NUM_THREADS=1)")
     print(f"(b) numpy, loop per tightening {t_np * 1e3:9.1f} ms  {fmt_rate(np_rate)}  ({np_cores:.2f} cores busy)")
-    print(f"(c) Rust / numpy speed-up      {speedup:9.1f} x")
+    print(f"(c) Rust / numpy speed-up      {speedup:9.1f} x" + (
+        f"   (per core, Rust on 1 thread: {t_np / single['best']:.1f} x)" if single is not None else ""))
     print(f"    statuses (Rust): {status_codes}")
     print(f"    numpy vs Rust: change_detected agrees on {agreement['change_detected_agreement']:.2%} "
           f"of tightenings ({agreement['rust_alarms']} Rust alarms, {agreement['numpy_alarms']} numpy; "
@@ -511,9 +559,9 @@ def main() -> int:
         "seed": args.seed,
         "samples": samples,
         "repeat": args.repeat,
+        "parquet_repeat": args.parquet_repeat,
         "cpus": os.cpu_count(),
-        "load_average_before": load_before,
-        "load_average_after": os.getloadavg(),
+        "cpu_busy_before": busy_before,
         "platform": platform.platform(),
         "python": platform.python_version(),
         "numpy": np.__version__,
@@ -529,6 +577,9 @@ def main() -> int:
         "numpy_samples_per_s": np_rate,
         "numpy_cores_busy": np_cores,
         "speedup_rust_over_numpy": speedup,
+        "rust_1_thread_detect_batch_s": single["best"] if single else None,
+        "rust_1_thread_samples_per_s": samples / single["best"] if single else None,
+        "speedup_rust_1_thread_over_numpy": t_np / single["best"] if single else None,
         "rust_status_counts": status_codes,
         "agreement": agreement,
         "parquet": parquet,

@@ -87,3 +87,14 @@ def test_cli_demo_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     text = capsys.readouterr().out
     assert "by strategy" in text and "recall" in text
     assert pq.read_metadata(tmp_path / "results.parquet").num_rows == 300
+
+
+def test_long_layout_split_handles_empty_batches() -> None:
+    from tightscan._api import _split_trailing_tightening
+
+    empty = pa.record_batch({"tightening_id": pa.array([], pa.int64()), "angle": pa.array([], pa.float64())})
+    done, carry = _split_trailing_tightening(empty)
+    assert done.num_rows == 0 and carry.num_rows == 0
+    batch = pa.record_batch({"tightening_id": [1, 1, 2, 2], "angle": [0.0, 1.0, 0.0, 1.0]})
+    done, carry = _split_trailing_tightening(batch)
+    assert done.column(0).to_pylist() == [1, 1] and carry.column(0).to_pylist() == [2, 2]

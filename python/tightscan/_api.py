@@ -214,6 +214,8 @@ def _batches(path: str, dataset: ds.Dataset, batch_size: int) -> Iterator[pa.Rec
 
 def _split_trailing_tightening(batch: pa.RecordBatch) -> tuple[pa.RecordBatch, pa.RecordBatch]:
     """Long layout: the last tightening of a batch may go on in the next one; keep it back."""
+    if batch.num_rows == 0:
+        return batch, batch
     ids = batch.column("tightening_id")
     last = ids[len(ids) - 1]
     same = pc.is_null(ids) if not last.is_valid else pc.fill_null(pc.equal(ids, last), False)

@@ -369,7 +369,7 @@ impl Detector {
             }
         }
         let t0 = torque[window.start].to_f64();
-        let rise = torque.iter().fold(f64::NEG_INFINITY, |m, t| m.max(t.to_f64())) - t0;
+        let rise = window.peak - t0;
         // Floor for noise-free or coarsely quantised torque: 1e-6 of the rise.
         let noise_sd = (rss / df.max(1.0)).sqrt().max(1e-6 * rise.abs().max(f64::MIN_POSITIVE));
 

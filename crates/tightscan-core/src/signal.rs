@@ -109,6 +109,8 @@ pub struct ElasticWindow {
     pub start: usize,
     /// One past the last sample.
     pub end: usize,
+    /// Highest torque of the curve [Nm].
+    pub peak: f64,
 }
 
 /// Why no window could be found.
@@ -129,20 +131,25 @@ pub fn elastic_window<A: Sample, T: Sample>(
     cfg: &ElasticZoneConfig,
 ) -> std::result::Result<ElasticWindow, WindowError> {
     let n = torque.len();
-    let (mut i_peak, mut peak, mut low) = (0, f64::NEG_INFINITY, f64::INFINITY);
+    // One pass: the peak, the lowest torque up to it (the base: prevailing torque and sensor
+    // offset), and the lowest overall (flat check). Plain comparisons rather than f64::min,
+    // whose NaN handling makes a serial dependency chain (inputs are checked finite already).
+    let (mut i_peak, mut peak) = (0, f64::NEG_INFINITY);
+    let (mut low, mut base) = (f64::INFINITY, f64::INFINITY);
     for (i, t) in torque.iter().enumerate() {
         let t = t.to_f64();
+        if t < low {
+            low = t;
+        }
         if t > peak {
             peak = t;
             i_peak = i;
+            base = low;
         }
-        low = low.min(t);
     }
     if n == 0 || peak <= low {
         return Err(WindowError::FlatTorque);
     }
-    // Base level: the lowest torque before the peak (prevailing torque and sensor offset).
-    let base = torque[..=i_peak].iter().fold(f64::INFINITY, |m, t| m.min(t.to_f64()));
     let rise = peak - base;
     let lo = base + cfg.start_fraction * rise;
     let hi = base + cfg.end_fraction * rise;
@@ -172,7 +179,7 @@ pub fn elastic_window<A: Sample, T: Sample>(
     if angle[end - 1].to_f64() <= angle[start].to_f64() {
         return Err(WindowError::AngleStuck);
     }
-    Ok(ElasticWindow { start, end })
+    Ok(ElasticWindow { start, end, peak })
 }
 
 /// Least-squares sums of one block, x = angle relative to the block's left edge and
@@ -316,7 +323,7 @@ mod tests {
         let torque: Vec<f64> =
             angle.iter().map(|&a| if a < 100.0 { 0.1 } else { (0.1 + 0.2 * (a - 100.0)).min(40.0) }).collect();
         let w = elastic_window(&angle, &torque, &ElasticZoneConfig::default());
-        let w = w.unwrap_or(ElasticWindow { start: 0, end: 0 });
+        let w = w.unwrap_or(ElasticWindow { start: 0, end: 0, peak: 0.0 });
         // peak 39.9 at 299; base 0.1; 30 % level = 12.04 -> first sample >= it is 160; 90 %
         // level first reached at 280, so the window is 160..=279, trimmed by 5 % of 119 deg.
         assert_eq!(w.start, 166);

@@ -13,11 +13,10 @@ use crate::cusum::cusum_arl;
 use crate::error::{Result, TightscanError};
 use crate::input::{to_nested, ChannelRow, Sample, Samples, TighteningTable};
 use crate::schema::{self, Layout, RESULT_COLUMNS, TIGHTENING_ID};
-use crate::signal::{
-    block_count, block_stats, elastic_window, stop_ranges, BlockConfig, Blocks, ElasticZoneConfig, PooledFit,
-    WindowError,
-};
+use crate::phases::{find_phases, PhaseScratch, Phases, YieldConfig};
+use crate::signal::{block_count, block_stats, stop_ranges, BlockConfig, Blocks, ElasticZoneConfig, PooledFit, WindowError};
 use crate::status::TighteningStatus;
+use crate::thread::{parse_thread, JointGeometry, D2_PITCH_FACTOR};
 
 /// Two-sided CUSUM settings, in sigma units of the standardised block torque rate.
 #[derive(Clone, Debug, PartialEq)]
@@ -38,11 +37,31 @@ impl Default for CusumConfig {
     }
 }
 
+/// Joint data for the friction coefficient, used where the table has no column of that name
+/// (a column value, when present and not null, wins over these).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrictionConfig {
+    /// ISO thread designation for every tightening, e.g. "M8" or "M10x1.25".
+    pub thread: Option<String>,
+    /// Pitch P \[mm\], overriding the thread table.
+    pub pitch_mm: Option<f64>,
+    /// Pitch diameter d2 \[mm\], overriding the thread table.
+    pub d2_mm: Option<f64>,
+    /// Effective bearing diameter Dkm \[mm\], overriding the thread table.
+    pub dkm_mm: Option<f64>,
+    /// Joint stiffness \[kN/deg\]: gives `mu_tot` from the torque rate without clamp force.
+    pub joint_stiffness: Option<f64>,
+}
+
 /// Everything `detect` needs.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DetectConfig {
     /// Elastic window finder.
     pub zone: ElasticZoneConfig,
+    /// Yield detection.
+    pub yield_zone: YieldConfig,
+    /// Thread geometry and joint stiffness for `mu_tot`.
+    pub friction: FrictionConfig,
     /// Blocks and training window.
     pub blocks: BlockConfig,
     /// CUSUM.
@@ -65,8 +84,33 @@ struct RowResult {
     status: TighteningStatus,
     n_samples: usize,
     window: Option<(f64, f64)>,
-    torque_rate: Option<f64>,
+    phases: Option<PhaseRow>,
+    friction: Option<FrictionRow>,
     cusum: Option<CusumRow>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct PhaseRow {
+    prevailing_torque: f64,
+    snug_angle: f64,
+    yield_angle: Option<f64>,
+    peak_torque: f64,
+    peak_angle: f64,
+    torque_rate: f64,
+}
+
+/// Where `mu_tot` came from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum MuSource {
+    ClampForce,
+    JointStiffness,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct FrictionRow {
+    mu_tot: f64,
+    nut_factor: f64,
+    source: MuSource,
 }
 
 #[derive(Clone, Debug)]
@@ -93,7 +137,7 @@ struct CusumAlarmRow {
 
 impl RowResult {
     fn failed(status: TighteningStatus, n_samples: usize) -> Self {
-        Self { status, n_samples, window: None, torque_rate: None, cusum: None }
+        Self { status, n_samples, window: None, phases: None, friction: None, cusum: None }
     }
     fn alarm(&self) -> Option<&CusumAlarmRow> {
         self.cusum.as_ref().and_then(|c| c.alarm.as_ref())
@@ -108,6 +152,18 @@ struct Scratch {
     usable: Vec<usize>,
     residuals: Vec<f64>,
     stops: Vec<(f64, f64)>,
+    phases: PhaseScratch,
+    force: Vec<f64>,
+}
+
+/// What the friction estimate can use for one tightening.
+enum FrictionInput {
+    /// Neither clamp force nor joint stiffness: torque rate only.
+    None,
+    /// Clamp force samples \[kN\] (copied to `Scratch::force`) and the joint geometry.
+    ClampForce(JointGeometry),
+    /// Joint stiffness \[kN/deg\] and the joint geometry.
+    JointStiffness(f64, JointGeometry),
 }
 
 /// Validated configuration plus the threshold it implies.
@@ -125,6 +181,26 @@ impl Detector {
         let c = &config.cusum;
         if !(c.kappa.is_finite() && c.kappa >= 0.0) {
             return Err(TightscanError::parameter("kappa", format!("must be >= 0, got {}", c.kappa)));
+        }
+        let f = &config.friction;
+        for (name, v) in [("pitch_mm", f.pitch_mm), ("d2_mm", f.d2_mm), ("dkm_mm", f.dkm_mm), ("joint_stiffness", f.joint_stiffness)] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(TightscanError::parameter(name, format!("must be > 0, got {v}")));
+                }
+            }
+        }
+        if let Some(t) = &f.thread {
+            if parse_thread(t).is_none() && !(f.pitch_mm.is_some() && f.d2_mm.is_some() && f.dkm_mm.is_some()) {
+                return Err(TightscanError::parameter(
+                    "thread",
+                    format!("{t:?} is not in the ISO thread table (M3-M24); give pitch_mm, d2_mm and dkm_mm"),
+                ));
+            }
+        }
+        let y = config.yield_zone.gradient_fraction;
+        if !(y > 0.0 && y < 1.0) {
+            return Err(TightscanError::parameter("yield_gradient_fraction", format!("must be in (0, 1), got {y}")));
         }
         let threshold = match c.threshold {
             Some(h) if h.is_finite() && h > 0.0 => h,
@@ -266,24 +342,88 @@ impl Detector {
                 n,
             );
         }
+        let friction = match self.friction_input(table, i, scratch) {
+            Ok(f) => f,
+            Err(status) => return RowResult::failed(status, n),
+        };
         match (angle, torque) {
-            (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, scratch),
-            (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, scratch),
-            (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, scratch),
-            (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, scratch),
+            (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, scratch),
+            (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, scratch),
+            (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, scratch),
+            (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, scratch),
+        }
+    }
+
+    /// Clamp force (copied into `scratch.force`) or joint stiffness, with the joint geometry:
+    /// columns first, then the configuration, then the thread table. Without either signal the
+    /// thread does not matter and is not checked.
+    fn friction_input(
+        &self,
+        table: &TighteningTable<'_>,
+        i: usize,
+        scratch: &mut Scratch,
+    ) -> std::result::Result<FrictionInput, TighteningStatus> {
+        let cfg = &self.config.friction;
+        let number = |name: &str, fallback: Option<f64>| table.number_of(name, i).filter(|v| *v > 0.0).or(fallback);
+        let force = table.channel(schema::CLAMP_FORCE).and_then(|c| match c.row(i) {
+            ChannelRow::Present { samples, .. } => Some(samples),
+            ChannelRow::Null => None,
+        });
+        let stiffness = number(schema::JOINT_STIFFNESS, cfg.joint_stiffness);
+        if force.is_none() && stiffness.is_none() {
+            return Ok(FrictionInput::None);
+        }
+        let designation = table.thread_of(i).or(cfg.thread.as_deref());
+        let tabled = designation.and_then(parse_thread).map(JointGeometry::from);
+        let pitch = number(schema::PITCH_MM, cfg.pitch_mm).or(tabled.map(|g| g.pitch_mm));
+        let d2 = number(schema::D2_MM, cfg.d2_mm).or(tabled.map(|g| g.d2_mm));
+        let dkm = number(schema::DKM_MM, cfg.dkm_mm).or(tabled.map(|g| g.dkm_mm));
+        let geometry = match (pitch, d2, dkm) {
+            (Some(p), Some(d2), Some(dkm)) => JointGeometry {
+                pitch_mm: p,
+                d2_mm: d2,
+                dkm_mm: dkm,
+                // d from the table when the designation is known, else from ISO 724 d2 = d - 0.6495 P.
+                nominal_diameter_mm: tabled.map_or(d2 + D2_PITCH_FACTOR * p, |g| g.nominal_diameter_mm),
+            },
+            _ => {
+                return match designation {
+                    Some(d) => Err(TighteningStatus::UnknownThread { designation: d.to_string() }),
+                    // No thread at all: mu_tot stays null, the rest is analysed.
+                    None => Ok(FrictionInput::None),
+                }
+            }
+        };
+        match (force, stiffness) {
+            (Some(f), _) => {
+                scratch.force.clear();
+                match f {
+                    Samples::F32(v) => scratch.force.extend(v.iter().map(|x| *x as f64)),
+                    Samples::F64(v) => scratch.force.extend_from_slice(v),
+                }
+                Ok(FrictionInput::ClampForce(geometry))
+            }
+            (None, Some(k)) => Ok(FrictionInput::JointStiffness(k, geometry)),
+            (None, None) => Ok(FrictionInput::None),
         }
     }
 
     /// Elastic window, block torque rates, standardisation, CUSUM.
-    fn analyse_curve<A: Sample, T: Sample>(&self, angle: &[A], torque: &[T], s: &mut Scratch) -> RowResult {
+    fn analyse_curve<A: Sample, T: Sample>(
+        &self,
+        angle: &[A],
+        torque: &[T],
+        friction: FrictionInput,
+        s: &mut Scratch,
+    ) -> RowResult {
         let n = angle.len();
         let cfg = &self.config;
         let first = angle[0].to_f64();
         if angle.iter().all(|a| a.to_f64() == first) {
             return RowResult::failed(TighteningStatus::FlatSignal { channel: schema::ANGLE }, n);
         }
-        let window = match elastic_window(angle, torque, &cfg.zone) {
-            Ok(w) => w,
+        let phases = match find_phases(angle, torque, &cfg.zone, &cfg.yield_zone, &mut s.phases) {
+            Ok(p) => p,
             Err(WindowError::FlatTorque) => {
                 return RowResult::failed(TighteningStatus::FlatSignal { channel: schema::TORQUE }, n)
             }
@@ -300,6 +440,16 @@ impl Detector {
                 )
             }
         };
+        let window = phases.window;
+        let phase_row = PhaseRow {
+            prevailing_torque: phases.prevailing_torque,
+            snug_angle: phases.snug_angle,
+            yield_angle: phases.yield_angle,
+            peak_torque: phases.peak_torque,
+            peak_angle: angle[phases.peak_index].to_f64(),
+            torque_rate: phases.torque_rate,
+        };
+        let friction_row = self.friction_row(torque, &phases, friction, s);
         let len = window.end - window.start;
         let n_blocks = block_count(len, &cfg.blocks);
         let needed_blocks = cfg.blocks.min_training_blocks + 2;
@@ -333,9 +483,6 @@ impl Detector {
             );
         }
         let window_angles = (angle[window.start].to_f64(), angle[window.end - 1].to_f64());
-        let mut whole = PooledFit::default();
-        s.usable.iter().for_each(|&b| whole.add(&blocks.stats[b]));
-        let torque_rate = whole.slope();
 
         // Reference rate: pooled slope of the training blocks. Its variance is about 1/B^3 of
         // one block's (B training blocks), so it adds next to nothing to the monitored z's.
@@ -405,7 +552,8 @@ impl Detector {
             status: TighteningStatus::Ok,
             n_samples: n,
             window: Some(window_angles),
-            torque_rate: Some(torque_rate),
+            phases: Some(phase_row),
+            friction: friction_row,
             cusum: Some(CusumRow {
                 alarm,
                 max_statistic: cusum.max_statistic(),
@@ -418,6 +566,37 @@ impl Detector {
                 block_angle: blocks.width,
             }),
         }
+    }
+}
+
+impl Detector {
+    /// Friction coefficient and nut factor over the elastic window. With clamp force: the robust
+    /// slope of torque on force, dT/dF = 0.16 P + 0.58 d2 mu_th + Dkm/2 mu_b (the prevailing
+    /// torque, a constant, drops out of the slope); with a joint stiffness k: F = k (theta -
+    /// theta_snug) in the elastic zone, so dT/dF = torque rate / k. Then ISO 16047 for mu_tot.
+    fn friction_row<T: Sample>(
+        &self,
+        torque: &[T],
+        phases: &Phases,
+        friction: FrictionInput,
+        s: &mut Scratch,
+    ) -> Option<FrictionRow> {
+        let (torque_per_force, geometry, source) = match friction {
+            FrictionInput::None => return None,
+            FrictionInput::JointStiffness(k, g) => (phases.torque_rate / k, g, MuSource::JointStiffness),
+            FrictionInput::ClampForce(g) => {
+                let w = phases.window;
+                let force = s.force.get(w.start..w.end)?;
+                let line = s.phases.robust_line_of(force, &torque[w.start..w.end])?;
+                (line.slope, g, MuSource::ClampForce)
+            }
+        };
+        let mu_tot = geometry.mu_tot(torque_per_force);
+        mu_tot.is_finite().then(|| FrictionRow {
+            mu_tot,
+            nut_factor: geometry.nut_factor(torque_per_force),
+            source,
+        })
     }
 }
 
@@ -449,15 +628,33 @@ fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
     };
     let status: ArrayRef = Arc::new(rows.iter().map(|r| Some(r.status.to_string())).collect::<StringArray>());
     let side: ArrayRef = Arc::new(rows.iter().map(|r| r.alarm().map(|a| a.side.as_str())).collect::<StringArray>());
+    let mu_source: ArrayRef = Arc::new(
+        rows.iter()
+            .map(|r| {
+                r.friction.map(|f| match f.source {
+                    MuSource::ClampForce => "clamp_force",
+                    MuSource::JointStiffness => "joint_stiffness",
+                })
+            })
+            .collect::<StringArray>(),
+    );
     vec![
         status,
         i(|r| Some(r.n_samples as i64)),
         b(|r| r.cusum.as_ref().map(|c| c.alarm.is_some())),
         f(|r| r.alarm().map(|a| a.change_angle)),
         i(|r| r.alarm().map(|a| a.change_index as i64)),
+        f(|r| r.phases.map(|p| p.prevailing_torque)),
+        f(|r| r.phases.map(|p| p.snug_angle)),
         f(|r| r.window.map(|w| w.0)),
         f(|r| r.window.map(|w| w.1)),
-        f(|r| r.torque_rate),
+        f(|r| r.phases.and_then(|p| p.yield_angle)),
+        f(|r| r.phases.map(|p| p.peak_torque)),
+        f(|r| r.phases.map(|p| p.peak_angle)),
+        f(|r| r.phases.map(|p| p.torque_rate)),
+        f(|r| r.friction.map(|p| p.mu_tot)),
+        f(|r| r.friction.map(|p| p.nut_factor)),
+        mu_source,
         b(|r| r.cusum.as_ref().map(|c| c.alarm.is_some())),
         i(|r| r.alarm().map(|a| a.alarm_index as i64)),
         f(|r| r.alarm().map(|a| a.alarm_angle)),

@@ -170,6 +170,16 @@ pub struct TighteningTable<'a> {
     pub torque: ChannelColumn<'a>,
     /// Optional channels present in the table.
     pub optional: Vec<ChannelColumn<'a>>,
+    /// `thread` designations, when the table has them.
+    pub thread: Option<&'a dyn Array>,
+    /// Numeric metadata columns present, by name (see [`schema::NUMERIC_METADATA`]).
+    pub numeric: Vec<(&'static str, &'a dyn Array)>,
+}
+
+/// Columns carried from the first sample of each tightening when the long layout is nested:
+/// the per-tightening metadata the analysis reads.
+fn metadata_columns() -> impl Iterator<Item = &'static str> {
+    std::iter::once(schema::THREAD).chain(schema::NUMERIC_METADATA.iter().map(|(n, _)| *n))
 }
 
 impl<'a> TighteningTable<'a> {
@@ -192,7 +202,55 @@ impl<'a> TighteningTable<'a> {
                 optional.push(c);
             }
         }
-        Ok(Self { n_rows: batch.num_rows(), angle, torque, optional })
+        let thread = batch.column_by_name(schema::THREAD).map(|a| a.as_ref());
+        let numeric = schema::NUMERIC_METADATA
+            .iter()
+            .filter_map(|(name, _)| batch.column_by_name(name).map(|a| (*name, a.as_ref())))
+            .collect();
+        Ok(Self { n_rows: batch.num_rows(), angle, torque, optional, thread, numeric })
+    }
+
+    /// The optional channel `name`, if the table has it.
+    pub fn channel(&self, name: &str) -> Option<&ChannelColumn<'a>> {
+        self.optional.iter().find(|c| c.name == name)
+    }
+
+    /// Thread designation of row `i` (None when absent or null).
+    pub fn thread_of(&self, i: usize) -> Option<&'a str> {
+        let a = self.thread?;
+        if a.is_null(i) {
+            return None;
+        }
+        match a.data_type() {
+            DataType::Utf8 => Some(a.as_string::<i32>().value(i)),
+            DataType::LargeUtf8 => Some(a.as_string::<i64>().value(i)),
+            DataType::Utf8View => Some(a.as_string_view().value(i)),
+            _ => None,
+        }
+    }
+
+    /// Numeric metadata `name` of row `i` as f64 (None when absent, null or not finite).
+    pub fn number_of(&self, name: &str, i: usize) -> Option<f64> {
+        use arrow_array::types::*;
+        let (_, a) = self.numeric.iter().find(|(n, _)| *n == name)?;
+        if a.is_null(i) {
+            return None;
+        }
+        let v = match a.data_type() {
+            DataType::Float64 => a.as_primitive::<Float64Type>().value(i),
+            DataType::Float32 => a.as_primitive::<Float32Type>().value(i) as f64,
+            DataType::Float16 => a.as_primitive::<Float16Type>().value(i).to_f64(),
+            DataType::Int8 => a.as_primitive::<Int8Type>().value(i) as f64,
+            DataType::Int16 => a.as_primitive::<Int16Type>().value(i) as f64,
+            DataType::Int32 => a.as_primitive::<Int32Type>().value(i) as f64,
+            DataType::Int64 => a.as_primitive::<Int64Type>().value(i) as f64,
+            DataType::UInt8 => a.as_primitive::<UInt8Type>().value(i) as f64,
+            DataType::UInt16 => a.as_primitive::<UInt16Type>().value(i) as f64,
+            DataType::UInt32 => a.as_primitive::<UInt32Type>().value(i) as f64,
+            DataType::UInt64 => a.as_primitive::<UInt64Type>().value(i) as f64,
+            _ => return None,
+        };
+        v.is_finite().then_some(v)
     }
 }
 
@@ -306,11 +364,15 @@ pub fn nest_long(batch: &RecordBatch, passthrough: &[String]) -> Result<RecordBa
         fields.push(Field::new(spec.name, DataType::LargeList(item), true));
         columns.push(Arc::new(list));
     }
-    for name in passthrough {
-        let col = batch
-            .column_by_name(name)
-            .ok_or_else(|| TightscanError::schema(name.as_str(), "pass-through column is missing"))?;
-        fields.push(batch.schema().field_with_name(name)?.clone());
+    let carried = metadata_columns().filter(|m| !passthrough.iter().any(|p| p == m)).map(str::to_string);
+    for name in passthrough.iter().cloned().chain(carried) {
+        let Some(col) = batch.column_by_name(&name) else {
+            if passthrough.contains(&name) {
+                return Err(TightscanError::schema(name.as_str(), "pass-through column is missing"));
+            }
+            continue;
+        };
+        fields.push(batch.schema().field_with_name(&name)?.clone());
         columns.push(take(col.as_ref(), &first_rows, None)?);
     }
     Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?)

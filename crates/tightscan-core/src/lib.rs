@@ -7,6 +7,7 @@ pub mod cusum;
 pub mod detect;
 pub mod error;
 pub mod input;
+pub mod phases;
 pub mod schema;
 pub mod signal;
 pub mod simulate;

@@ -26,6 +26,20 @@ pub const STRATEGY: &str = "strategy";
 pub const THREAD: &str = "thread";
 /// Target torque [Nm]. Optional metadata.
 pub const TARGET_TORQUE: &str = "target_torque";
+/// Thread pitch P \[mm\]; overrides the thread table. Optional metadata.
+pub const PITCH_MM: &str = "pitch_mm";
+/// Pitch diameter d2 \[mm\]; overrides the thread table. Optional metadata.
+pub const D2_MM: &str = "d2_mm";
+/// Effective bearing diameter Dkm \[mm\]; overrides the thread table. Optional metadata.
+pub const DKM_MM: &str = "dkm_mm";
+/// Joint stiffness in the elastic zone \[kN/deg\]: gives `mu_tot` without a clamp-force
+/// channel. Optional metadata.
+pub const JOINT_STIFFNESS: &str = "joint_stiffness";
+
+/// Per-tightening numeric metadata the analysis reads (one value per tightening; in the long
+/// layout the value of the tightening's first sample). Float or integer columns.
+pub const NUMERIC_METADATA: [(&str, &str); 4] =
+    [(PITCH_MM, "mm"), (D2_MM, "mm"), (DKM_MM, "mm"), (JOINT_STIFFNESS, "kN/deg")];
 
 /// A measured channel of the contract.
 #[derive(Clone, Copy, Debug)]
@@ -87,6 +101,24 @@ pub fn detect_layout(schema: &Schema) -> Result<Layout> {
             TIGHTENING_ID,
             "missing: the long layout (one row per sample) needs it to group samples into tightenings",
         ));
+    }
+    if let Ok(f) = schema.field_with_name(THREAD) {
+        if !matches!(f.data_type(), DataType::Utf8 | DataType::LargeUtf8 | DataType::Utf8View) {
+            return Err(TightscanError::schema(
+                THREAD,
+                format!("expected a string column such as \"M8\" or \"M10x1.25\", got {}", f.data_type()),
+            ));
+        }
+    }
+    for (name, unit) in NUMERIC_METADATA {
+        if let Ok(f) = schema.field_with_name(name) {
+            if !(f.data_type().is_floating() || f.data_type().is_integer()) {
+                return Err(TightscanError::schema(
+                    name,
+                    format!("expected one number per tightening [{unit}], got {}", f.data_type()),
+                ));
+            }
+        }
     }
     if let Ok(id) = schema.field_with_name(TIGHTENING_ID) {
         if !is_id_type(id.data_type()) {
@@ -158,9 +190,17 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("change_detected", ResultType::Boolean, "", "a friction change was found (null when status is not ok)"),
     ("change_angle", ResultType::Float64, "deg", "estimated start of the change (null when none)"),
     ("change_index", ResultType::Int64, "", "sample index of the estimated start (null when none)"),
+    ("prevailing_torque", ResultType::Float64, "Nm", "median rundown torque before the final rise"),
+    ("snug_angle", ResultType::Float64, "deg", "where the elastic line meets the prevailing torque (tangent method)"),
     ("elastic_start_angle", ResultType::Float64, "deg", "start of the analysed elastic window"),
     ("elastic_end_angle", ResultType::Float64, "deg", "end of the analysed elastic window"),
-    ("torque_rate", ResultType::Float64, "Nm/deg", "least-squares torque rate over the elastic window"),
+    ("yield_angle", ResultType::Float64, "deg", "where the torque gradient falls below half the elastic one (null when it does not)"),
+    ("peak_torque", ResultType::Float64, "Nm", "highest torque of the curve"),
+    ("peak_angle", ResultType::Float64, "deg", "angle at the highest torque"),
+    ("torque_rate", ResultType::Float64, "Nm/deg", "robust (Huber) torque rate over the elastic window"),
+    ("mu_tot", ResultType::Float64, "", "total friction coefficient, ISO 16047 (null without clamp force or joint stiffness, or without thread geometry)"),
+    ("nut_factor", ResultType::Float64, "", "nut factor K = T / (F d) from the elastic torque-force slope"),
+    ("mu_tot_source", ResultType::Utf8, "", "'clamp_force' or 'joint_stiffness': what mu_tot was computed from"),
     ("cusum_alarm", ResultType::Boolean, "", "CUSUM crossed its threshold"),
     ("cusum_alarm_index", ResultType::Int64, "", "sample index where it crossed"),
     ("cusum_alarm_angle", ResultType::Float64, "deg", "angle where it crossed"),

@@ -51,6 +51,12 @@ pub enum TighteningStatus {
         /// Channel that is constant.
         channel: &'static str,
     },
+    /// Clamp force or joint stiffness is given, so `mu_tot` is asked for, but the thread is not
+    /// in the table and no `pitch_mm`/`d2_mm`/`dkm_mm` replace it.
+    UnknownThread {
+        /// The designation as given.
+        designation: String,
+    },
     /// No usable elastic clamping zone was found.
     NoElasticZone {
         /// Why not.
@@ -71,6 +77,7 @@ impl TighteningStatus {
             Self::TooShort { .. } => "too_short",
             Self::FlatSignal { .. } => "flat_signal",
             Self::NoElasticZone { .. } => "no_elastic_zone",
+            Self::UnknownThread { .. } => "unknown_thread",
         }
     }
 
@@ -102,6 +109,11 @@ impl fmt::Display for TighteningStatus {
             }
             Self::FlatSignal { channel } => write!(f, "{code}: {channel} does not vary"),
             Self::NoElasticZone { reason } => write!(f, "{code}: {reason}"),
+            Self::UnknownThread { designation } => write!(
+                f,
+                "{code}: {designation:?} is not an ISO metric thread of the table (M3-M24, coarse and \
+                 common fine pitches); give pitch_mm, d2_mm and dkm_mm to compute mu_tot"
+            ),
         }
     }
 }

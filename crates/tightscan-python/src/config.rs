@@ -34,6 +34,12 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "zone_end_fraction" => c.zone.end_fraction = get(py, &key, &v)?,
             "zone_trim_fraction" => c.zone.trim_fraction = get(py, &key, &v)?,
             "zone_min_samples" => c.zone.min_samples = get(py, &key, &v)?,
+            "yield_gradient_fraction" => c.yield_zone.gradient_fraction = get(py, &key, &v)?,
+            "thread" => c.friction.thread = Some(get(py, &key, &v)?),
+            "pitch_mm" => c.friction.pitch_mm = Some(get(py, &key, &v)?),
+            "d2_mm" => c.friction.d2_mm = Some(get(py, &key, &v)?),
+            "dkm_mm" => c.friction.dkm_mm = Some(get(py, &key, &v)?),
+            "joint_stiffness" => c.friction.joint_stiffness = Some(get(py, &key, &v)?),
             "max_blocks" => c.blocks.max_blocks = get(py, &key, &v)?,
             "min_block_samples" => c.blocks.min_block_samples = get(py, &key, &v)?,
             "training_fraction" => c.blocks.training_fraction = get(py, &key, &v)?,
@@ -54,6 +60,12 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("zone_end_fraction", c.zone.end_fraction)?;
     d.set_item("zone_trim_fraction", c.zone.trim_fraction)?;
     d.set_item("zone_min_samples", c.zone.min_samples)?;
+    d.set_item("yield_gradient_fraction", c.yield_zone.gradient_fraction)?;
+    d.set_item("thread", c.friction.thread.clone())?;
+    d.set_item("pitch_mm", c.friction.pitch_mm)?;
+    d.set_item("d2_mm", c.friction.d2_mm)?;
+    d.set_item("dkm_mm", c.friction.dkm_mm)?;
+    d.set_item("joint_stiffness", c.friction.joint_stiffness)?;
     d.set_item("max_blocks", c.blocks.max_blocks)?;
     d.set_item("min_block_samples", c.blocks.min_block_samples)?;
     d.set_item("training_fraction", c.blocks.training_fraction)?;

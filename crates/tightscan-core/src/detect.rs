@@ -342,10 +342,7 @@ impl Detector {
                 n,
             );
         }
-        let friction = match self.friction_input(table, i, scratch) {
-            Ok(f) => f,
-            Err(status) => return RowResult::failed(status, n),
-        };
+        let friction = self.friction_input(table, i, scratch);
         match (angle, torque) {
             (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, scratch),
             (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, scratch),
@@ -413,7 +410,7 @@ impl Detector {
         &self,
         angle: &[A],
         torque: &[T],
-        friction: FrictionInput,
+        friction: std::result::Result<FrictionInput, TighteningStatus>,
         s: &mut Scratch,
     ) -> RowResult {
         let n = angle.len();
@@ -429,7 +426,7 @@ impl Detector {
             }
             Err(WindowError::TooShort(len)) => {
                 return RowResult::failed(
-                    TighteningStatus::TooShort { samples: len, minimum: cfg.zone.min_samples, what: "elastic window" },
+                    TighteningStatus::TooShort { samples: len, minimum: crate::phases::MIN_FIT_SAMPLES, what: "elastic window" },
                     n,
                 )
             }
@@ -449,19 +446,38 @@ impl Detector {
             peak_angle: angle[phases.peak_index].to_f64(),
             torque_rate: phases.torque_rate,
         };
-        let friction_row = self.friction_row(torque, &phases, friction, s);
+        let (friction_row, friction_status) = match friction {
+            Ok(f) => (self.friction_row(torque, &phases, f, s), TighteningStatus::Ok),
+            Err(status) => (None, status),
+        };
+        let window_angles = (angle[window.start].to_f64(), angle[window.end - 1].to_f64());
+        // From here on a failure still reports the phases and the friction estimate: they need
+        // far fewer samples than the detectors (a short real curve keeps its torque rate).
+        // An unknown thread is named first: it is a fix to the data that applies to every row.
+        let partial = |status: TighteningStatus| RowResult {
+            status: if friction_status.is_ok() { status } else { friction_status.clone() },
+            n_samples: n,
+            window: Some(window_angles),
+            phases: Some(phase_row),
+            friction: friction_row,
+            cusum: None,
+        };
         let len = window.end - window.start;
+        if len < cfg.zone.min_samples {
+            return partial(TighteningStatus::TooShort {
+                samples: len,
+                minimum: cfg.zone.min_samples,
+                what: "elastic window",
+            });
+        }
         let n_blocks = block_count(len, &cfg.blocks);
         let needed_blocks = cfg.blocks.min_training_blocks + 2;
         if n_blocks < needed_blocks {
-            return RowResult::failed(
-                TighteningStatus::TooShort {
-                    samples: len,
-                    minimum: needed_blocks * cfg.blocks.min_block_samples,
-                    what: "elastic window",
-                },
-                n,
-            );
+            return partial(TighteningStatus::TooShort {
+                samples: len,
+                minimum: needed_blocks * cfg.blocks.min_block_samples,
+                what: "elastic window",
+            });
         }
         block_stats(angle, torque, window, n_blocks, &mut s.blocks);
         stop_ranges(angle, torque, window, &mut s.stops);
@@ -477,12 +493,10 @@ impl Detector {
         let n_train = ((cfg.blocks.training_fraction * s.usable.len() as f64).ceil() as usize)
             .max(cfg.blocks.min_training_blocks);
         if s.usable.len() < n_train + 2 {
-            return RowResult::failed(
-                TighteningStatus::NoElasticZone { reason: "too few blocks with an angle spread in the window" },
-                n,
-            );
+            return partial(TighteningStatus::NoElasticZone {
+                reason: "too few blocks with an angle spread in the window",
+            });
         }
-        let window_angles = (angle[window.start].to_f64(), angle[window.end - 1].to_f64());
 
         // Reference rate: pooled slope of the training blocks. Its variance is about 1/B^3 of
         // one block's (B training blocks), so it adds next to nothing to the monitored z's.
@@ -549,7 +563,7 @@ impl Detector {
             }
         });
         RowResult {
-            status: TighteningStatus::Ok,
+            status: friction_status,
             n_samples: n,
             window: Some(window_angles),
             phases: Some(phase_row),

@@ -111,6 +111,11 @@ fn median_in_place(v: &mut [f64]) -> f64 {
     }
 }
 
+/// Fewest window samples for the phases and the robust torque rate. The detectors need more
+/// (`ElasticZoneConfig::min_samples`, checked by the caller): a short real curve still gets its
+/// phases and friction estimate, which is what monitoring across tightenings uses.
+pub const MIN_FIT_SAMPLES: usize = 10;
+
 /// Huber k for 95 % asymptotic efficiency at the normal.
 const HUBER_K: f64 = 1.345;
 /// MAD to sd under Gaussian noise.
@@ -148,11 +153,14 @@ pub fn robust_line(x: &[f64], y: &[f64], scratch: &mut Vec<f64>) -> Option<Line>
     Some(Line { intercept: a, slope: b, scale })
 }
 
-/// Knee of the continuous hinge `T = c + G (theta - theta_k)+` fitted by least squares over
-/// samples `[0, end)`; returns the knee's sample index. Candidates are the samples themselves,
-/// each costing O(1) from suffix sums of theta, theta^2, T and theta T.
+/// Knee of the continuous broken line `T = c + g1 theta + d (theta - theta_k)+` (d > 0: steeper
+/// after the knee) fitted by least squares over samples `[0, end)`; returns the knee's sample
+/// index. The rundown is given a slope of its own because real rundowns are not flat: a
+/// thread-forming screw's torque grows by half over 1,500 deg of rundown as more thread
+/// engages, and a flat-plus-line model then puts its knee into that slow ramp. Candidates are the
+/// samples themselves, each costing O(1) from suffix sums.
 fn hinge_knee<A: Sample, T: Sample>(angle: &[A], torque: &[T], end: usize) -> Option<usize> {
-    if end < 4 {
+    if end < 8 {
         return None;
     }
     // Centre both variables on the last sample so sums of squares do not cancel badly over
@@ -160,39 +168,57 @@ fn hinge_knee<A: Sample, T: Sample>(angle: &[A], torque: &[T], end: usize) -> Op
     let a_ref = angle[end - 1].to_f64();
     let t_ref = torque[end - 1].to_f64();
     let n = end as f64;
-    let (mut st, mut stt) = (0.0, 0.0);
-    for t in &torque[..end] {
-        let t = t.to_f64() - t_ref;
-        st += t;
-        stt += t * t;
+    let (mut gx, mut gxx, mut gy, mut gxy, mut gyy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for i in 0..end {
+        let (x, y) = (angle[i].to_f64() - a_ref, torque[i].to_f64() - t_ref);
+        gx += x;
+        gxx += x * x;
+        gy += y;
+        gxy += x * y;
+        gyy += y * y;
     }
     // Walk the knee from the end backwards, accumulating suffix sums of samples after it.
     let (mut cnt, mut s1, mut s2, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
     let mut best = (f64::INFINITY, None);
-    for j in (1..end - 1).rev() {
+    for j in (3..end - 1).rev() {
         let (xj1, yj1) = (angle[j + 1].to_f64() - a_ref, torque[j + 1].to_f64() - t_ref);
         cnt += 1.0;
         s1 += xj1;
         s2 += xj1 * xj1;
         sy += yj1;
         sxy += xj1 * yj1;
+        if cnt < 3.0 {
+            continue;
+        }
         let xj = angle[j].to_f64() - a_ref;
-        // u_i = (x_i - x_j)+ over samples after j (angles are non-decreasing on the rise;
-        // where they are not, the clamp at zero is skipped: the hinge is an approximation).
+        // u_i = (x_i - x_j)+ over the samples after j.
         let su = s1 - xj * cnt;
         let suu = s2 - 2.0 * xj * s1 + xj * xj * cnt;
+        let sxu = s2 - xj * s1;
         let suy = sxy - xj * sy;
-        // Normal equations of y = c + G u: [[n, su], [su, suu]] [c, G] = [st, suy].
-        let det = n * suu - su * su;
-        if det <= 1e-12 * n * suu.max(f64::MIN_POSITIVE) {
+        // Normal equations of y = c + g1 x + d u, solved by Cramer's rule.
+        let m = [[n, gx, su], [gx, gxx, sxu], [su, sxu, suu]];
+        let r = [gy, gxy, suy];
+        let det3 = |m: &[[f64; 3]; 3]| {
+            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        };
+        let det = det3(&m);
+        if !(det.abs() > 1e-12 * n * gxx.abs().max(f64::MIN_POSITIVE) * suu.max(f64::MIN_POSITIVE)) {
             continue;
         }
-        let c = (suu * st - su * suy) / det;
-        let g = (n * suy - su * st) / det;
-        if g <= 0.0 {
+        let solve = |col: usize| {
+            let mut mc = m;
+            for (row, v) in mc.iter_mut().zip(r) {
+                row[col] = v;
+            }
+            det3(&mc) / det
+        };
+        let (c, g1, d) = (solve(0), solve(1), solve(2));
+        if d <= 0.0 {
             continue;
         }
-        let rss = stt - c * st - g * suy;
+        let rss = gyy - c * gy - g1 * gxy - d * suy;
         if rss < best.0 {
             best = (rss, Some(j));
         }
@@ -283,7 +309,7 @@ pub fn find_phases<A: Sample, T: Sample>(
         while window.end > window.start && angle[window.end - 1].to_f64() > limit {
             window.end -= 1;
         }
-        if window.end - window.start < zone.min_samples {
+        if window.end - window.start < MIN_FIT_SAMPLES {
             return Err(WindowError::TooShort(window.end - window.start));
         }
     }
@@ -312,7 +338,7 @@ pub fn find_phases<A: Sample, T: Sample>(
 /// Trims `[start, end)` by `trim_fraction` of its angle span at both ends and checks its size.
 fn trim<A: Sample>(angle: &[A], mut start: usize, mut end: usize, zone: &ElasticZoneConfig) -> Result<ElasticWindow, WindowError> {
     if end <= start || angle[end - 1].to_f64() <= angle[start].to_f64() {
-        return if end.saturating_sub(start) < zone.min_samples {
+        return if end.saturating_sub(start) < MIN_FIT_SAMPLES {
             Err(WindowError::TooShort(end.saturating_sub(start)))
         } else {
             Err(WindowError::AngleStuck)
@@ -326,7 +352,7 @@ fn trim<A: Sample>(angle: &[A], mut start: usize, mut end: usize, zone: &Elastic
     while end > start && angle[end - 1].to_f64() > a_hi - margin {
         end -= 1;
     }
-    if end - start < zone.min_samples {
+    if end - start < MIN_FIT_SAMPLES {
         return Err(WindowError::TooShort(end - start));
     }
     if angle[end - 1].to_f64() <= angle[start].to_f64() {

@@ -13,8 +13,9 @@ import warnings
 
 from . import _core
 from ._api import ScanSummary, cusum_arl, cusum_threshold, detect_batch, read_results, scan_parquet, simulate
-from .config import BlockConfig, CusumConfig, DetectConfig, ElasticZoneConfig
+from .config import BlockConfig, CusumConfig, DetectConfig, ElasticZoneConfig, FrictionConfig
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
+from .rexroth import read_rexroth
 
 __version__: str = _core.__version__
 
@@ -30,6 +31,7 @@ __all__ = [
     "detect_batch",
     "scan_parquet",
     "read_results",
+    "read_rexroth",
     "simulate",
     "cusum_threshold",
     "cusum_arl",
@@ -38,6 +40,7 @@ __all__ = [
     "CusumConfig",
     "ElasticZoneConfig",
     "BlockConfig",
+    "FrictionConfig",
     "TightscanError",
     "SchemaError",
     "InvalidParameterError",

@@ -1,4 +1,4 @@
-"""Command line: `tightscan scan | simulate | demo`."""
+"""Command line: `tightscan scan | simulate | demo | import rexroth`."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 from ._api import ScanSummary, scan_parquet, simulate
 from .config import BlockConfig, CusumConfig, DetectConfig, ElasticZoneConfig
 from .exceptions import TightscanError
+from .rexroth import write_rexroth
 
 SIMULATE_CHUNK = 10_000
 
@@ -157,6 +158,37 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _join_keys(text: str) -> tuple[str, str]:
+    """``cycle=run_id`` -> ("cycle", "run_id"); ``cycle`` alone means the same name on both sides."""
+    left, sep, right = text.partition("=")
+    left, right = left.strip(), right.strip() if sep else left.strip()
+    if not left or not right:
+        raise argparse.ArgumentTypeError(f"expected TABLE_COLUMN=LABEL_COLUMN, not {text!r}")
+    return left, right
+
+
+def cmd_import_rexroth(args: argparse.Namespace) -> int:
+    rows = write_rexroth(
+        args.inputs,
+        args.output,
+        labels=args.labels,
+        on=args.on,
+        keep_redundant=args.keep_redundant,
+        progress=False if args.no_progress else None,
+        compression=args.compression,
+    )
+    statuses = pq.read_table(args.output, columns=["import_status"]).column("import_status").to_pylist()
+    codes: dict[str, int] = {}
+    for status in statuses:
+        if status != "ok":
+            code = str(status).split(":")[0]
+            codes[code] = codes.get(code, 0) + 1
+    bad = sum(codes.values())
+    detail = f" ({', '.join(f'{c}: {n:,}' for c, n in sorted(codes.items()))})" if codes else ""
+    print(f"imported {rows:,} Rexroth runs to {args.output}; {bad:,} with an import_status other than ok{detail}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tightscan",
@@ -185,6 +217,26 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--dir", default="out/demo", help="where data and results go (default %(default)s)")
     demo.add_argument("--no-progress", action="store_true")
     demo.set_defaults(func=cmd_demo)
+
+    # `import` takes the tool format as a sub-subcommand, so that other controllers' exports
+    # can be added beside `rexroth` without changing what existing commands mean.
+    imp = sub.add_parser("import", help="convert tightening-tool exports into the tightening table (Parquet)")
+    formats = imp.add_subparsers(dest="format", required=True, metavar="FORMAT")
+    rex = formats.add_parser("rexroth", help="Bosch Rexroth JSON exports, one file per run (docs/rexroth-import.md)")
+    rex.add_argument("inputs", nargs="+", metavar="DIR_OR_FILES", help="JSON files, directories (their *.json) or globs")
+    rex.add_argument("-o", "--output", required=True, help="tightening table Parquet file")
+    rex.add_argument("--labels", default=None, help="CSV of labels to left-join (one row per run)")
+    rex.add_argument(
+        "--on",
+        type=_join_keys,
+        default=("cycle", "run_id"),
+        metavar="COLUMN=LABEL_COLUMN",
+        help="join key: table column = labels column (default cycle=run_id)",
+    )
+    rex.add_argument("--keep-redundant", action="store_true", help="also write the torque_red and angle_red channels")
+    rex.add_argument("--compression", choices=["zstd", "snappy"], default="zstd", help="Parquet compression (default %(default)s)")
+    rex.add_argument("--no-progress", action="store_true", help="no progress bar")
+    rex.set_defaults(func=cmd_import_rexroth)
     return parser
 
 

@@ -3,6 +3,7 @@
 //! Pure Rust, no Python: the `tightscan-python` crate only converts types and errors.
 #![doc = include_str!("../README.md")]
 
+pub mod breakpoint;
 pub mod cusum;
 pub mod detect;
 pub mod error;

@@ -1,0 +1,348 @@
+//! Offline change-point scan of the elastic line: the likelihood-ratio test for one break in
+//! the linear model `torque = a + b angle` at an unknown sample (Quandt 1960; Andrews 1993,
+//! "Tests for parameter instability and structural change with unknown change point",
+//! Econometrica 61, sup-LR form).
+//!
+//! Why this detector: a multiplicative change of friction at angle theta_0 changes the torque
+//! per clamp force, and the clamp force already built up multiplies it, so the torque jumps by
+//! F(theta_0) dK and its slope changes by k dK (METHODS.md section 1). The jump is tens of noise
+//! standard deviations even for a 3 % change, and a scan over every split point sees it
+//! wherever it lies, including where an online detector would still be training. The estimate
+//! of the change start is the arg max, good to a sample for abrupt changes.
+//!
+//! Statistic, for a split at k (left: samples `[0, k)`, right: `[k, n)`, each at least
+//! `min_segment` long):
+//!
+//!     LR_k = n ln(RSS_0 / (RSS_left,k + RSS_right,k)),   sup-LR = max_k LR_k
+//!
+//! computed for every k in one pass of prefix sums. Under no change with i.i.d. Gaussian noise
+//! its distribution depends only on n, the trimming and the design; for samples spaced evenly
+//! in angle the critical values are the shipped table [`SUP_LR_QUANTILES`]
+//! (see [`simulate_sup_lr_quantiles`] for how it was made). Decelerating tools (HDT) space the
+//! samples unevenly; the size on such curves is checked by test.
+
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
+
+use crate::error::{Result, TightscanError};
+
+/// Result of one scan.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BreakScan {
+    /// sup-LR statistic.
+    pub statistic: f64,
+    /// First sample of the right segment at the maximum (the change-start estimate).
+    pub split: usize,
+    /// Jump of the fitted lines at the split (right minus left, at the split's x).
+    pub jump: f64,
+    /// Slope change (right minus left).
+    pub slope_change: f64,
+}
+
+/// Running least-squares sums.
+#[derive(Clone, Copy, Debug, Default)]
+struct Sums {
+    n: f64,
+    x: f64,
+    y: f64,
+    xx: f64,
+    xy: f64,
+    yy: f64,
+}
+
+impl Sums {
+    fn add(&mut self, x: f64, y: f64) {
+        self.n += 1.0;
+        self.x += x;
+        self.y += y;
+        self.xx += x * x;
+        self.xy += x * y;
+        self.yy += y * y;
+    }
+    fn minus(&self, o: &Sums) -> Sums {
+        Sums {
+            n: self.n - o.n,
+            x: self.x - o.x,
+            y: self.y - o.y,
+            xx: self.xx - o.xx,
+            xy: self.xy - o.xy,
+            yy: self.yy - o.yy,
+        }
+    }
+    /// (intercept, slope, residual sum of squares) of the least-squares line.
+    fn fit(&self) -> (f64, f64, f64) {
+        let sxx = self.xx - self.x * self.x / self.n;
+        let sxy = self.xy - self.x * self.y / self.n;
+        let syy = self.yy - self.y * self.y / self.n;
+        if sxx <= 0.0 {
+            return (self.y / self.n, 0.0, syy.max(0.0));
+        }
+        let b = sxy / sxx;
+        ((self.y - b * self.x) / self.n, b, (syy - b * sxy).max(0.0))
+    }
+}
+
+/// Scans every split with at least `min_segment` samples on each side. `x` and `y` should be
+/// centred near zero (window coordinates) so the sums do not cancel. `prefix` is scratch.
+/// Returns `None` when there is no admissible split or no residual variance.
+pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f64, f64, f64, f64, f64)>) -> Option<BreakScan> {
+    let n = x.len();
+    let min_segment = min_segment.max(3);
+    if n < 2 * min_segment || y.len() != n {
+        return None;
+    }
+    let mut total = Sums::default();
+    prefix.clear();
+    for i in 0..n {
+        total.add(x[i], y[i]);
+        prefix.push((total.x, total.y, total.xx, total.xy, total.yy));
+    }
+    let (_, _, rss0) = total.fit();
+    if !(rss0 > 0.0) {
+        return None;
+    }
+    let mut best: Option<BreakScan> = None;
+    let mut best_rss = f64::INFINITY;
+    for k in min_segment..=(n - min_segment) {
+        let p = prefix[k - 1];
+        let left = Sums { n: k as f64, x: p.0, y: p.1, xx: p.2, xy: p.3, yy: p.4 };
+        let right = total.minus(&left);
+        let (_, _, rl) = left.fit();
+        let (_, _, rr) = right.fit();
+        let rss = rl + rr;
+        if rss < best_rss {
+            best_rss = rss;
+            let (al, bl, _) = left.fit();
+            let (ar, br, _) = right.fit();
+            best = Some(BreakScan {
+                statistic: 0.0,
+                split: k,
+                jump: (ar + br * x[k]) - (al + bl * x[k]),
+                slope_change: br - bl,
+            });
+        }
+    }
+    let mut b = best?;
+    // Noise-free splits (rss = 0) would give an infinite statistic: floor at 1e-300.
+    b.statistic = n as f64 * (rss0 / best_rss.max(1e-300 * rss0)).ln();
+    Some(b)
+}
+
+/// Smallest segment for `n` samples: 5 % of them, at least 10 (a line and its noise level).
+pub fn min_segment(n: usize) -> usize {
+    ((n as f64 * 0.05).ceil() as usize).max(10)
+}
+
+/// Sample sizes of the shipped table.
+pub const TABLE_N: [usize; 8] = [30, 60, 120, 250, 500, 1000, 2000, 4000];
+/// Upper-tail probabilities of the shipped table.
+pub const TABLE_ALPHA: [f64; 8] = [0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 0.005, 0.001];
+
+/// (1 - alpha) quantiles of sup-LR under no change, i.i.d. Gaussian noise, samples evenly spaced,
+/// segments of at least [`min_segment`]`(n)`: rows follow [`TABLE_N`], columns [`TABLE_ALPHA`].
+/// Made by `simulate_sup_lr_quantiles(n, 200_000, 20261121 + n)` for each n (the ignored test
+/// `regenerate_table` prints it). Monte Carlo standard error of the 0.01 column: about 0.7 %
+/// of its value; of the 0.001 column about 2 %.
+pub static SUP_LR_QUANTILES: [[f64; 8]; 8] = [
+    [4.381, 7.145, 9.032, 10.866, 13.218, 14.871, 16.550, 20.609], // n = 30
+    [5.877, 8.612, 10.442, 12.190, 14.416, 16.079, 17.697, 21.585], // n = 60
+    [6.696, 9.412, 11.221, 12.936, 15.077, 16.712, 18.276, 21.607], // n = 120
+    [7.231, 9.960, 11.746, 13.448, 15.544, 17.079, 18.564, 22.167], // n = 250
+    [7.451, 10.188, 11.989, 13.651, 15.828, 17.393, 18.880, 22.201], // n = 500
+    [7.597, 10.350, 12.146, 13.863, 15.984, 17.563, 19.133, 22.740], // n = 1000
+    [7.724, 10.502, 12.329, 14.031, 16.186, 17.808, 19.363, 22.990], // n = 2000
+    [7.825, 10.610, 12.415, 14.155, 16.345, 17.912, 19.570, 23.140], // n = 4000
+];
+
+/// Null quantiles by Monte Carlo: `reps` series of n evenly spaced samples with i.i.d. N(0,1)
+/// noise, returns the (1 - alpha) quantile for each alpha of [`TABLE_ALPHA`].
+pub fn simulate_sup_lr_quantiles(n: usize, reps: usize, seed: u64) -> Vec<f64> {
+    let x: Vec<f64> = (0..n).map(|i| i as f64 / n as f64 - 0.5).collect();
+    let seg = min_segment(n);
+    let mut stats: Vec<f64> = (0..reps)
+        .into_par_iter()
+        .map_init(
+            || (Vec::with_capacity(n), Vec::with_capacity(n)),
+            |(y, prefix), r| {
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ (r as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+                y.clear();
+                y.extend((0..n).map(|_| <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)));
+                sup_lr_scan(&x, y, seg, prefix).map_or(0.0, |b| b.statistic)
+            },
+        )
+        .collect();
+    stats.sort_by(f64::total_cmp);
+    TABLE_ALPHA
+        .iter()
+        .map(|a| {
+            let pos = ((1.0 - a) * reps as f64).ceil() as usize;
+            stats[pos.min(reps - 1)]
+        })
+        .collect()
+}
+
+/// Critical value at `alpha` for n samples: the table, interpolated linearly in ln n and, for
+/// alpha between table columns, linearly in ln alpha. n beyond the table uses its last row
+/// (the statistic grows like ln ln n, a few percent per doubling; see the size tests).
+pub fn sup_lr_critical_value(n: usize, alpha: f64) -> Result<f64> {
+    if !(alpha >= TABLE_ALPHA[TABLE_ALPHA.len() - 1] && alpha <= TABLE_ALPHA[0]) {
+        return Err(TightscanError::parameter(
+            "alpha",
+            format!("must be in [{}, {}] for the shipped sup-LR table, got {alpha}", TABLE_ALPHA[7], TABLE_ALPHA[0]),
+        ));
+    }
+    Ok(interpolate(n, |row| interpolate_alpha(row, alpha)))
+}
+
+/// Approximate p-value of a sup-LR statistic for n samples: the table inverted, linearly in
+/// ln alpha; clamped to [0.001, 0.5] (reported as such beyond the table).
+pub fn sup_lr_p_value(n: usize, statistic: f64) -> f64 {
+    let quantiles: Vec<f64> = (0..TABLE_ALPHA.len()).map(|j| interpolate(n, |row| row[j])).collect();
+    if statistic <= quantiles[0] {
+        return TABLE_ALPHA[0];
+    }
+    for j in 1..TABLE_ALPHA.len() {
+        if statistic <= quantiles[j] {
+            let t = (statistic - quantiles[j - 1]) / (quantiles[j] - quantiles[j - 1]);
+            let (la, lb) = (TABLE_ALPHA[j - 1].ln(), TABLE_ALPHA[j].ln());
+            return (la + t * (lb - la)).exp();
+        }
+    }
+    TABLE_ALPHA[TABLE_ALPHA.len() - 1]
+}
+
+fn interpolate_alpha(row: &[f64; 8], alpha: f64) -> f64 {
+    for j in 1..TABLE_ALPHA.len() {
+        if alpha >= TABLE_ALPHA[j] {
+            let (la, lb) = (TABLE_ALPHA[j - 1].ln(), TABLE_ALPHA[j].ln());
+            let t = (alpha.ln() - la) / (lb - la);
+            return row[j - 1] + t * (row[j] - row[j - 1]);
+        }
+    }
+    row[TABLE_ALPHA.len() - 1]
+}
+
+fn interpolate(n: usize, value: impl Fn(&[f64; 8]) -> f64) -> f64 {
+    let n = (n as f64).clamp(TABLE_N[0] as f64, TABLE_N[TABLE_N.len() - 1] as f64);
+    for i in 1..TABLE_N.len() {
+        if n <= TABLE_N[i] as f64 {
+            let (la, lb) = ((TABLE_N[i - 1] as f64).ln(), (TABLE_N[i] as f64).ln());
+            let t = (n.ln() - la) / (lb - la);
+            let (va, vb) = (value(&SUP_LR_QUANTILES[i - 1]), value(&SUP_LR_QUANTILES[i]));
+            return va + t * (vb - va);
+        }
+    }
+    value(&SUP_LR_QUANTILES[TABLE_N.len() - 1])
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used)]
+mod tests {
+    use super::*;
+
+    fn evenly_spaced(n: usize) -> Vec<f64> {
+        (0..n).map(|i| i as f64 / n as f64 - 0.5).collect()
+    }
+
+    #[test]
+    fn scan_matches_brute_force() {
+        let n = 80;
+        let x = evenly_spaced(n);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        let y: Vec<f64> = x
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| 2.0 * v + if i >= 50 { 0.3 + v } else { 0.0 } + 0.1 * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
+            .collect();
+        let b = sup_lr_scan(&x, &y, 10, &mut Vec::new()).unwrap();
+        let rss = |lo: usize, hi: usize| {
+            let mut s = Sums::default();
+            (lo..hi).for_each(|i| s.add(x[i], y[i]));
+            s.fit().2
+        };
+        let (best_k, best) = (10..=70).map(|k| (k, rss(0, k) + rss(k, n))).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
+        assert_eq!(b.split, best_k);
+        assert!((b.statistic - n as f64 * (rss(0, n) / best).ln()).abs() < 1e-9);
+        assert_eq!(b.split, 50);
+        // The right segment adds 0.3 + x: a jump of 0.3 + x[50] = 0.425 and a slope change of 1.
+        assert!((b.slope_change - 1.0).abs() < 0.3 && (b.jump - 0.425).abs() < 0.05, "{b:?}");
+    }
+
+    /// Size against the table at alpha 0.05 and 0.01 for sizes between table rows (so the
+    /// interpolation is checked too), fresh seeds: within 4 binomial sd.
+    #[test]
+    fn size_matches_nominal() {
+        for n in [45, 400, 1500] {
+            let reps = 20_000;
+            let x = evenly_spaced(n);
+            let seg = min_segment(n);
+            let stats: Vec<f64> = (0..reps)
+                .into_par_iter()
+                .map_init(Vec::new, |prefix, r| {
+                    let mut rng = Xoshiro256PlusPlus::seed_from_u64(777 + r as u64 * 31 + n as u64);
+                    let y: Vec<f64> = (0..n).map(|_| <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)).collect();
+                    sup_lr_scan(&x, &y, seg, prefix).unwrap().statistic
+                })
+                .collect();
+            for alpha in [0.05, 0.01] {
+                let c = sup_lr_critical_value(n, alpha).unwrap();
+                let rate = stats.iter().filter(|&&s| s > c).count() as f64 / reps as f64;
+                let sd = (alpha * (1.0 - alpha) / reps as f64).sqrt();
+                assert!((rate - alpha).abs() < 4.0 * sd + 0.002, "n {n} alpha {alpha}: {rate}");
+            }
+            // p-values are uniform in the tail: P(p <= 0.02) ~ 0.02.
+            let small = stats.iter().filter(|&&s| sup_lr_p_value(n, s) <= 0.02).count() as f64 / reps as f64;
+            assert!((small - 0.02).abs() < 0.006, "n {n}: P(p <= 0.02) = {small}");
+        }
+    }
+
+    /// Power and location: a 3 % friction step at mid-window of a typical curve (torque jump
+    /// 1.2 % of the torque there, noise 0.2 % of the target) is found, at the right sample.
+    #[test]
+    fn finds_a_small_friction_step_at_the_right_sample() {
+        let n = 600;
+        let x: Vec<f64> = (0..n).map(|i| i as f64 * 0.1).collect(); // 60 deg
+        let mut found = 0;
+        let mut exact = 0;
+        for r in 0..500 {
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(9_000 + r);
+            let k0 = 150 + (r as usize * 7) % 300;
+            // Torque 5..45 Nm over the window (target 50 Nm, noise 0.1 Nm); friction part 85 %.
+            let y: Vec<f64> = x
+                .iter()
+                .enumerate()
+                .map(|(i, &a)| {
+                    let m = if i >= k0 { 1.0 + 0.03 * 0.85 } else { 1.0 };
+                    (5.0 + a * 40.0 / 60.0) * m + 0.1 * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
+                })
+                .collect();
+            let b = sup_lr_scan(&x, &y, min_segment(n), &mut Vec::new()).unwrap();
+            if b.statistic > sup_lr_critical_value(n, 0.01).unwrap() {
+                found += 1;
+            }
+            if b.split.abs_diff(k0) <= 2 {
+                exact += 1;
+            }
+        }
+        assert!(found >= 495, "{found} of 500 found");
+        assert!(exact >= 450, "{exact} of 500 within 2 samples");
+    }
+
+    #[test]
+    fn bad_alpha_is_named() {
+        assert!(sup_lr_critical_value(100, 0.0001).err().map(|e| e.to_string()).unwrap_or_default().contains("'alpha'"));
+        assert!((sup_lr_critical_value(1000, 0.01).unwrap() - 17.563).abs() < 1e-9);
+    }
+
+    #[test]
+    #[ignore = "regenerates the shipped table (about a minute on two cores)"]
+    fn regenerate_table() {
+        for n in TABLE_N {
+            let q = simulate_sup_lr_quantiles(n, 200_000, 20_261_121 + n as u64);
+            let row: Vec<String> = q.iter().map(|v| format!("{v:.3}")).collect();
+            println!("    [{}], // n = {n}", row.join(", "));
+        }
+    }
+}

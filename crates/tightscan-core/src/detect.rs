@@ -7,6 +7,7 @@ use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use arrow_select::concat::concat_batches;
 use rayon::prelude::*;
 
+use crate::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_p_value, sup_lr_scan};
 use crate::cusum::{cusum_threshold, CusumSide, TwoSidedCusum};
 #[cfg(test)]
 use crate::cusum::cusum_arl;
@@ -53,6 +54,19 @@ pub struct FrictionConfig {
     pub joint_stiffness: Option<f64>,
 }
 
+/// The sup-LR break scan of the elastic line (see [`crate::breakpoint`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BreakConfig {
+    /// False-alarm probability per tightening of the scan alone.
+    pub alpha: f64,
+}
+
+impl Default for BreakConfig {
+    fn default() -> Self {
+        Self { alpha: 0.01 }
+    }
+}
+
 /// Everything `detect` needs.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DetectConfig {
@@ -66,6 +80,8 @@ pub struct DetectConfig {
     pub blocks: BlockConfig,
     /// CUSUM.
     pub cusum: CusumConfig,
+    /// Break scan.
+    pub breaks: BreakConfig,
 }
 
 /// Chi-square quantile by Wilson and Hilferty (1931): k (1 - 2/(9k) + z sqrt(2/(9k)))^3.
@@ -86,7 +102,19 @@ struct RowResult {
     window: Option<(f64, f64)>,
     phases: Option<PhaseRow>,
     friction: Option<FrictionRow>,
+    breaks: Option<BreakRow>,
     cusum: Option<CusumRow>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct BreakRow {
+    alarm: bool,
+    statistic: f64,
+    critical_value: f64,
+    p_value: f64,
+    change_index: usize,
+    change_angle: f64,
+    jump: f64,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -137,7 +165,7 @@ struct CusumAlarmRow {
 
 impl RowResult {
     fn failed(status: TighteningStatus, n_samples: usize) -> Self {
-        Self { status, n_samples, window: None, phases: None, friction: None, cusum: None }
+        Self { status, n_samples, window: None, phases: None, friction: None, breaks: None, cusum: None }
     }
     fn alarm(&self) -> Option<&CusumAlarmRow> {
         self.cusum.as_ref().and_then(|c| c.alarm.as_ref())
@@ -154,6 +182,10 @@ struct Scratch {
     stops: Vec<(f64, f64)>,
     phases: PhaseScratch,
     force: Vec<f64>,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    index: Vec<usize>,
+    prefix: Vec<(f64, f64, f64, f64, f64)>,
 }
 
 /// What the friction estimate can use for one tightening.
@@ -201,6 +233,10 @@ impl Detector {
         let y = config.yield_zone.gradient_fraction;
         if !(y > 0.0 && y < 1.0) {
             return Err(TightscanError::parameter("yield_gradient_fraction", format!("must be in (0, 1), got {y}")));
+        }
+        let a = config.breaks.alpha;
+        if !(0.001..=0.5).contains(&a) {
+            return Err(TightscanError::parameter("break_alpha", format!("must be in [0.001, 0.5], got {a}")));
         }
         let threshold = match c.threshold {
             Some(h) if h.is_finite() && h > 0.0 => h,
@@ -451,6 +487,8 @@ impl Detector {
             Err(status) => (None, status),
         };
         let window_angles = (angle[window.start].to_f64(), angle[window.end - 1].to_f64());
+        stop_ranges(angle, torque, window, &mut s.stops);
+        let break_row = self.break_row(angle, torque, window, s);
         // From here on a failure still reports the phases and the friction estimate: they need
         // far fewer samples than the detectors (a short real curve keeps its torque rate).
         // An unknown thread is named first: it is a fix to the data that applies to every row.
@@ -460,6 +498,7 @@ impl Detector {
             window: Some(window_angles),
             phases: Some(phase_row),
             friction: friction_row,
+            breaks: break_row,
             cusum: None,
         };
         let len = window.end - window.start;
@@ -480,7 +519,6 @@ impl Detector {
             });
         }
         block_stats(angle, torque, window, n_blocks, &mut s.blocks);
-        stop_ranges(angle, torque, window, &mut s.stops);
         let blocks = &s.blocks;
         let stops = &s.stops;
         let width = blocks.width;
@@ -568,6 +606,7 @@ impl Detector {
             window: Some(window_angles),
             phases: Some(phase_row),
             friction: friction_row,
+            breaks: break_row,
             cusum: Some(CusumRow {
                 alarm,
                 max_statistic: cusum.max_statistic(),
@@ -584,6 +623,44 @@ impl Detector {
 }
 
 impl Detector {
+    /// sup-LR scan over the window's samples, leaving out those in a stop range (a CSDT pause:
+    /// relaxation at standstill and the wind-up after it are not friction).
+    fn break_row<A: Sample, T: Sample>(
+        &self,
+        angle: &[A],
+        torque: &[T],
+        window: crate::signal::ElasticWindow,
+        s: &mut Scratch,
+    ) -> Option<BreakRow> {
+        let a0 = angle[window.start].to_f64();
+        let t0 = torque[window.start].to_f64();
+        s.x.clear();
+        s.y.clear();
+        s.index.clear();
+        for i in window.start..window.end {
+            let x = angle[i].to_f64() - a0;
+            if s.stops.iter().any(|&(lo, hi)| x >= lo && x <= hi) {
+                continue;
+            }
+            s.x.push(x);
+            s.y.push(torque[i].to_f64() - t0);
+            s.index.push(i);
+        }
+        let n = s.x.len();
+        let scan = sup_lr_scan(&s.x, &s.y, min_segment(n), &mut s.prefix)?;
+        let critical_value = sup_lr_critical_value(n, self.config.breaks.alpha).ok()?;
+        let change_index = s.index[scan.split];
+        Some(BreakRow {
+            alarm: scan.statistic > critical_value,
+            statistic: scan.statistic,
+            critical_value,
+            p_value: sup_lr_p_value(n, scan.statistic),
+            change_index,
+            change_angle: angle[change_index].to_f64(),
+            jump: scan.jump,
+        })
+    }
+
     /// Friction coefficient and nut factor over the elastic window. With clamp force: the robust
     /// slope of torque on force, dT/dF = 0.16 P + 0.58 d2 mu_th + Dkm/2 mu_b (the prevailing
     /// torque, a constant, drops out of the slope); with a joint stiffness k: F = k (theta -
@@ -683,6 +760,13 @@ fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         f(|r| r.cusum.as_ref().map(|c| c.dispersion)),
         i(|r| r.cusum.as_ref().map(|c| c.blocks as i64)),
         f(|r| r.cusum.as_ref().map(|c| c.block_angle)),
+        b(|r| r.breaks.map(|b| b.alarm)),
+        f(|r| r.breaks.map(|b| b.statistic)),
+        f(|r| r.breaks.map(|b| b.critical_value)),
+        f(|r| r.breaks.map(|b| b.p_value)),
+        i(|r| r.breaks.map(|b| b.change_index as i64)),
+        f(|r| r.breaks.map(|b| b.change_angle)),
+        f(|r| r.breaks.map(|b| b.jump)),
     ]
 }
 

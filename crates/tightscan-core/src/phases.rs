@@ -526,7 +526,7 @@ mod tests {
         assert!((p.snug_angle - 302.0).abs() < 0.05, "{p:?}");
         assert!((p.torque_rate - 0.02).abs() < 1e-9, "{p:?}");
         assert!(p.yield_angle.is_none());
-        assert!(a[p.window.start] > 302.0 + 0.3 * 35.0 - 1.0);
+        assert!(a[p.window.start] > 302.0 + 0.2 * 35.0 - 1.0);
     }
 
     #[test]

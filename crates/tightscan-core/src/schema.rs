@@ -215,6 +215,13 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("cusum_dispersion", ResultType::Float64, "", "spread of standardised training blocks (1 for white noise)"),
     ("cusum_blocks", ResultType::Int64, "", "blocks monitored after the training window"),
     ("cusum_block_angle", ResultType::Float64, "deg", "angle width of one block"),
+    ("break_alarm", ResultType::Boolean, "", "the sup-LR scan of the elastic line found a break at break_alpha"),
+    ("break_statistic", ResultType::Float64, "", "sup-LR statistic (largest likelihood ratio over split points)"),
+    ("break_critical_value", ResultType::Float64, "", "critical value at break_alpha for this window's sample count"),
+    ("break_p_value", ResultType::Float64, "", "p-value of the statistic from the shipped null table (0.001 to 0.5)"),
+    ("break_change_index", ResultType::Int64, "", "sample index of the most likely break"),
+    ("break_change_angle", ResultType::Float64, "deg", "angle of the most likely break"),
+    ("break_jump", ResultType::Float64, "Nm", "torque jump of the two fitted lines at the break"),
 ];
 
 /// Arrow type of a result column.

@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import tightscan
+
 from tightscan.cli import main
 from tightscan.rexroth import ANGLE_RESTART_TOLERANCE_DEG, read_rexroth, rexroth_schema, write_rexroth
 
@@ -24,31 +25,6 @@ REPO = Path(__file__).resolve().parents[1]
 N_RUNS = 5000
 # Real runs picked for their step counts (4, 3, 2 and 1 steps).
 FOUR_STEPS = "Ch_000001596334.json"
-
-
-def _data_dir() -> Path:
-    """``$TIGHTSCAN_SHARED_DATA`` (the shared data directory, or rexroth-s01 itself), else the
-    checkout's sibling ``shared/data``."""
-    env = os.environ.get("TIGHTSCAN_SHARED_DATA")
-    base = Path(env) if env else REPO.parent / "shared" / "data"
-    return base if (base / "runs").is_dir() else base / "rexroth-s01"
-
-
-@pytest.fixture(scope="module")
-def data_dir() -> Path:
-    d = _data_dir()
-    runs = d / "runs"
-    if not runs.is_dir() or not (d / "labels.csv").is_file():
-        pytest.fail(f"the Rexroth data set is missing at {d} (set TIGHTSCAN_SHARED_DATA to its location)")
-    count = sum(1 for _ in runs.glob("*.json"))
-    assert count == N_RUNS, f"{runs} holds {count} JSON files, expected {N_RUNS}"
-    return d
-
-
-@pytest.fixture(scope="module")
-def full(data_dir: Path) -> pa.Table:
-    """The whole data set, imported once for every full-set test, labels joined."""
-    return read_rexroth(data_dir / "runs", labels=data_dir / "labels.csv", progress=False)
 
 
 def _row(table: pa.Table, file_name: str) -> dict[str, Any]:
@@ -65,40 +41,40 @@ def _as_parquet(table: pa.Table) -> pa.Table:
     return table.cast(schema)
 
 
-def _file_with_steps(data_dir: Path, full: pa.Table, n_steps: int) -> Path:
-    names: list[str] = full.filter(pc.equal(full.column("n_steps"), n_steps)).column("file_name").to_pylist()
-    return data_dir / "runs" / names[0]
+def _file_with_steps(rexroth_dir: Path, rexroth_s01: pa.Table, n_steps: int) -> Path:
+    names: list[str] = rexroth_s01.filter(pc.equal(rexroth_s01.column("n_steps"), n_steps)).column("file_name").to_pylist()
+    return rexroth_dir / "runs" / names[0]
 
 
 # ---------------------------------------------------------------------------------------------
 # The real runs
 
 
-def test_every_real_run_imports(full: pa.Table, data_dir: Path) -> None:
-    assert full.num_rows == N_RUNS
-    assert set(full.column("import_status").to_pylist()) == {"ok"}
-    assert dict(Counter(full.column("n_steps").to_pylist())) == {4: 4151, 2: 766, 3: 82, 1: 1}
-    assert dict(Counter(full.column("result").to_pylist())) == {"OK": 4089, "NOK": 911}
-    names = full.column("file_name").to_pylist()
-    assert names == sorted(p.name for p in (data_dir / "runs").glob("*.json"))
-    assert full.column("tightening_id").equals(full.column("cycle"))
-    assert full.column("tightening_id").to_pylist() == [int(n[3:-5]) for n in names]
-    assert full.schema.field("date").type == pa.timestamp("s")
-    assert set(full.column("program").to_pylist()) == {"SMW_4step"}
-    assert set(full.column("nominal_torque").to_pylist()) == {6.0}  # the tool's, not the target
-    assert full.column("tool_serial").null_count == 0
+def test_every_real_run_imports(rexroth_s01: pa.Table, rexroth_dir: Path) -> None:
+    assert rexroth_s01.num_rows == N_RUNS
+    assert set(rexroth_s01.column("import_status").to_pylist()) == {"ok"}
+    assert dict(Counter(rexroth_s01.column("n_steps").to_pylist())) == {4: 4151, 2: 766, 3: 82, 1: 1}
+    assert dict(Counter(rexroth_s01.column("result").to_pylist())) == {"OK": 4089, "NOK": 911}
+    names = rexroth_s01.column("file_name").to_pylist()
+    assert names == sorted(p.name for p in (rexroth_dir / "runs").glob("*.json"))
+    assert rexroth_s01.column("tightening_id").equals(rexroth_s01.column("cycle"))
+    assert rexroth_s01.column("tightening_id").to_pylist() == [int(n[3:-5]) for n in names]
+    assert rexroth_s01.schema.field("date").type == pa.timestamp("s")
+    assert set(rexroth_s01.column("program").to_pylist()) == {"SMW_4step"}
+    assert set(rexroth_s01.column("nominal_torque").to_pylist()) == {6.0}  # the tool's, not the target
+    assert rexroth_s01.column("tool_serial").null_count == 0
     # The schema up to the channels is the documented one; labels come after it.
-    assert full.schema.names[: len(rexroth_schema().names)] == rexroth_schema().names
+    assert rexroth_s01.schema.names[: len(rexroth_schema().names)] == rexroth_schema().names
 
 
-def test_channels_and_steps_are_consistent(full: pa.Table) -> None:
+def test_channels_and_steps_are_consistent(rexroth_s01: pa.Table) -> None:
     channels = ["time", "angle", "torque", "gradient", "step"]
-    lengths = [pc.list_value_length(full.column(c)).to_numpy() for c in channels]
+    lengths = [pc.list_value_length(rexroth_s01.column(c)).to_numpy() for c in channels]
     for c, n in zip(channels[1:], lengths[1:]):
         assert np.array_equal(n, lengths[0]), c
     assert lengths[0].min() > 0
-    cols = {c: full.column(c).to_pylist() for c in ["angle", "time", "step", "step_start_index", "n_steps"]}
-    for i in range(full.num_rows):
+    cols = {c: rexroth_s01.column(c).to_pylist() for c in ["angle", "time", "step", "step_start_index", "n_steps"]}
+    for i in range(rexroth_s01.num_rows):
         angle, t, step = np.array(cols["angle"][i]), np.array(cols["time"][i]), np.array(cols["step"][i])
         starts, n_steps = cols["step_start_index"][i], cols["n_steps"][i]
         assert len(starts) == n_steps and starts[0] == 0
@@ -113,13 +89,13 @@ def test_channels_and_steps_are_consistent(full: pa.Table) -> None:
         assert np.all(np.diff(t) >= 0)
 
 
-def test_step_targets(full: pa.Table) -> None:
-    n_steps = np.array(full.column("n_steps").to_pylist())
-    target = np.array(full.column("target_torque").to_pylist(), dtype=float)  # None -> nan
+def test_step_targets(rexroth_s01: pa.Table) -> None:
+    n_steps = np.array(rexroth_s01.column("n_steps").to_pylist())
+    target = np.array(rexroth_s01.column("target_torque").to_pylist(), dtype=float)  # None -> nan
     assert np.all(target[n_steps == 4] == 1.4)
     assert np.all(target[n_steps == 3] == 1.1)  # stopped after pre-tightening
     assert np.all(np.isnan(target[n_steps <= 2]))  # finding/thread forming have no TF Torque
-    row = _row(full, FOUR_STEPS)
+    row = _row(rexroth_s01, FOUR_STEPS)
     assert row["step_names"] == ["Finding", "Thread forming", "Pre-tightening", "Tightening 1.4"]
     assert row["step_target_torque"] == [None, None, 1.1, 1.4]
     assert row["step_target_angle"] == [100.0, 1400.0, None, None]
@@ -131,27 +107,27 @@ def test_step_targets(full: pa.Table) -> None:
     assert row["torque"][550:553] == [1.108, 1.108, 1.159]
 
 
-def test_labels_join_every_run(full: pa.Table) -> None:
-    usage = full.column("workpiece_usage")
+def test_labels_join_every_run(rexroth_s01: pa.Table) -> None:
+    usage = rexroth_s01.column("workpiece_usage")
     assert usage.null_count == 0
     assert pc.min(usage).as_py() == 0 and pc.max(usage).as_py() == 24
     assert set(Counter(usage.to_pylist()).values()) == {200}  # 100 workpieces x 2 positions
-    assert Counter(full.column("workpiece_location").to_pylist()) == {"left": 2500, "right": 2500}
-    assert "run_id" not in full.column_names  # the key is not repeated
+    assert Counter(rexroth_s01.column("workpiece_location").to_pylist()) == {"left": 2500, "right": 2500}
+    assert "run_id" not in rexroth_s01.column_names  # the key is not repeated
     # the labels' own file_name collides with ours: prefixed, and it matches row for row
-    assert full.column("label_file_name").equals(full.column("file_name"))
+    assert rexroth_s01.column("label_file_name").equals(rexroth_s01.column("file_name"))
     # independent fields agree, so the join matched the right runs and the date parsed right
-    assert full.column("workpiece_date").equals(full.column("date"))
-    assert full.column("workpiece_result").equals(full.column("result"))
-    assert pc.cast(full.column("id_code"), pa.int64()).equals(full.column("workpiece_id"))
+    assert rexroth_s01.column("workpiece_date").equals(rexroth_s01.column("date"))
+    assert rexroth_s01.column("workpiece_result").equals(rexroth_s01.column("result"))
+    assert pc.cast(rexroth_s01.column("id_code"), pa.int64()).equals(rexroth_s01.column("workpiece_id"))
 
 
-def test_detect_batch_gives_one_row_per_run(full: pa.Table) -> None:
-    results = tightscan.detect_batch(full, passthrough=["file_name", "workpiece_usage"])
+def test_detect_batch_gives_one_row_per_run(rexroth_s01: pa.Table) -> None:
+    results = tightscan.detect_batch(rexroth_s01, passthrough=["file_name", "workpiece_usage"])
     assert isinstance(results, pa.Table)
     assert results.num_rows == N_RUNS
-    assert results.column("tightening_id").equals(full.column("tightening_id"))
-    assert results.column("file_name").equals(full.column("file_name"))
+    assert results.column("tightening_id").equals(rexroth_s01.column("tightening_id"))
+    assert results.column("file_name").equals(rexroth_s01.column("file_name"))
     statuses = results.column("status").to_pylist()
     codes = Counter(s.split(":")[0] for s in statuses)
     assert "null_tightening" not in codes and "length_mismatch" not in codes
@@ -167,8 +143,8 @@ def _load(path: Path) -> dict[str, Any]:
     return doc
 
 
-def test_broken_files_get_a_row_and_a_status(tmp_path: Path, data_dir: Path, full: pa.Table) -> None:
-    runs = data_dir / "runs"
+def test_broken_files_get_a_row_and_a_status(tmp_path: Path, rexroth_dir: Path, rexroth_s01: pa.Table) -> None:
+    runs = rexroth_dir / "runs"
     good = sorted(runs.glob("*.json"))[:3]
     for p in good:
         shutil.copy(p, tmp_path / p.name)
@@ -233,7 +209,7 @@ def test_broken_files_get_a_row_and_a_status(tmp_path: Path, data_dir: Path, ful
     # good rows are exactly what the full import made of them
     ok = table.filter(pc.equal(table.column("import_status"), "ok"))
     assert ok.column("file_name").to_pylist() == [p.name for p in good]
-    expected = full.slice(0, 3).select(ok.column_names)
+    expected = rexroth_s01.slice(0, 3).select(ok.column_names)
     assert ok.equals(expected)
 
     # the engine sees the broken rows as null tightenings, one row each, in order
@@ -262,11 +238,11 @@ def _restart(doc: dict[str, Any], channels: tuple[str, ...]) -> dict[str, Any]:
 
 
 @pytest.mark.parametrize("channels", [("angle values", "time values"), ("angle values",), ("time values",)])
-def test_restarting_axes_become_cumulative(tmp_path: Path, data_dir: Path, full: pa.Table, channels: tuple[str, ...]) -> None:
+def test_restarting_axes_become_cumulative(tmp_path: Path, rexroth_dir: Path, rexroth_s01: pa.Table, channels: tuple[str, ...]) -> None:
     # The rule: a step whose first value lies below the previous step's (already offset) last
     # value by more than the tolerance is shifted to start exactly at that last value. This data
     # set repeats the join sample, so the shifted copy must give back the original axes.
-    originals = [data_dir / "runs" / FOUR_STEPS, _file_with_steps(data_dir, full, 3), _file_with_steps(data_dir, full, 2)]
+    originals = [rexroth_dir / "runs" / FOUR_STEPS, _file_with_steps(rexroth_dir, rexroth_s01, 3), _file_with_steps(rexroth_dir, rexroth_s01, 2)]
     for p in originals:
         (tmp_path / p.name).write_text(json.dumps(_restart(_load(p), channels)))
     restarted = read_rexroth([tmp_path / p.name for p in originals], progress=False)
@@ -274,7 +250,7 @@ def test_restarting_axes_become_cumulative(tmp_path: Path, data_dir: Path, full:
     # the copies really restart: every later step begins at 0
     assert _load(tmp_path / FOUR_STEPS)["tightening steps"][3]["graph"][channels[0]][0] == 0
     for p, row in zip(originals, restarted.to_pylist()):
-        want = _row(full, p.name)
+        want = _row(rexroth_s01, p.name)
         for c in ["angle", "time"]:
             np.testing.assert_allclose(row[c], want[c], rtol=0, atol=1e-9, err_msg=f"{p.name} {c}")
             for s in row["step_start_index"][1:]:
@@ -282,8 +258,8 @@ def test_restarting_axes_become_cumulative(tmp_path: Path, data_dir: Path, full:
         assert row["torque"] == want["torque"] and row["step"] == want["step"]
 
 
-def test_small_backward_step_is_not_a_restart(tmp_path: Path, data_dir: Path) -> None:
-    doc = _load(data_dir / "runs" / FOUR_STEPS)
+def test_small_backward_step_is_not_a_restart(tmp_path: Path, rexroth_dir: Path) -> None:
+    doc = _load(rexroth_dir / "runs" / FOUR_STEPS)
     graph = doc["tightening steps"][1]["graph"]
     back = ANGLE_RESTART_TOLERANCE_DEG / 2
     graph["angle values"] = [v - back for v in graph["angle values"]]  # real reversal, kept
@@ -300,8 +276,8 @@ def test_small_backward_step_is_not_a_restart(tmp_path: Path, data_dir: Path) ->
 # Paths, labels, options
 
 
-def test_paths_globs_lists_and_errors(tmp_path: Path, data_dir: Path) -> None:
-    runs = data_dir / "runs"
+def test_paths_globs_lists_and_errors(tmp_path: Path, rexroth_dir: Path) -> None:
+    runs = rexroth_dir / "runs"
     picked = sorted(runs.glob("*.json"))[10:14]
     listed = read_rexroth([picked[2], picked[0]], progress=False)
     assert listed.column("file_name").to_pylist() == [picked[2].name, picked[0].name]  # as given
@@ -321,8 +297,8 @@ def test_paths_globs_lists_and_errors(tmp_path: Path, data_dir: Path) -> None:
         read_rexroth(str(tmp_path / "*.json"), progress=False)
 
 
-def test_labels_from_a_table_keys_cast_and_errors(tmp_path: Path, data_dir: Path) -> None:
-    files = sorted((data_dir / "runs").glob("*.json"))[:5]
+def test_labels_from_a_table_keys_cast_and_errors(tmp_path: Path, rexroth_dir: Path) -> None:
+    files = sorted((rexroth_dir / "runs").glob("*.json"))[:5]
     ids = [int(p.name[3:-5]) for p in files]
     labels = pa.table({"run_id": [str(i) for i in ids[1:]][::-1], "usage": [1, 2, 3, 4], "result": ["a", "b", "c", "d"]})
     table = read_rexroth(files, labels=labels, progress=False)
@@ -331,7 +307,7 @@ def test_labels_from_a_table_keys_cast_and_errors(tmp_path: Path, data_dir: Path
     assert table.column("label_result").to_pylist() == [None, "d", "c", "b", "a"]
     assert table.column("result").equals(read_rexroth(files, progress=False).column("result"))  # untouched
 
-    by_name = read_rexroth(files, labels=data_dir / "labels.csv", on=("file_name", "file_name"), progress=False)
+    by_name = read_rexroth(files, labels=rexroth_dir / "labels.csv", on=("file_name", "file_name"), progress=False)
     assert by_name.column("run_id").to_pylist() == ids
 
     with pytest.raises(tightscan.SchemaError) as e:
@@ -350,8 +326,8 @@ def test_labels_from_a_table_keys_cast_and_errors(tmp_path: Path, data_dir: Path
         read_rexroth(files, labels=tmp_path / "labels.csv", progress=False)
 
 
-def test_redundant_channels_write_and_progress(tmp_path: Path, data_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    files = sorted((data_dir / "runs").glob("*.json"))[:20]
+def test_redundant_channels_write_and_progress(tmp_path: Path, rexroth_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    files = sorted((rexroth_dir / "runs").glob("*.json"))[:20]
     table = read_rexroth(files, keep_redundant=True, progress=True)
     assert table.schema.names == rexroth_schema(keep_redundant=True).names
     assert table.schema.names[-3:] == ["step", "torque_red", "angle_red"]
@@ -374,21 +350,21 @@ def test_redundant_channels_write_and_progress(tmp_path: Path, data_dir: Path, c
 # Command line
 
 
-def test_cli_import_rexroth(tmp_path: Path, data_dir: Path, full: pa.Table, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_import_rexroth(tmp_path: Path, rexroth_dir: Path, rexroth_s01: pa.Table, capsys: pytest.CaptureFixture[str]) -> None:
     src = tmp_path / "runs"
     src.mkdir()
-    picked = sorted((data_dir / "runs").glob("*.json"))[::100]
+    picked = sorted((rexroth_dir / "runs").glob("*.json"))[::100]
     assert len(picked) == 50
     for p in picked:
         shutil.copy(p, src / p.name)
     out = tmp_path / "out.parquet"
-    argv = ["import", "rexroth", str(src), "-o", str(out), "--labels", str(data_dir / "labels.csv"), "--on", "cycle=run_id", "--no-progress"]
+    argv = ["import", "rexroth", str(src), "-o", str(out), "--labels", str(rexroth_dir / "labels.csv"), "--on", "cycle=run_id", "--no-progress"]
     assert main(argv) == 0
     assert "imported 50 Rexroth runs" in capsys.readouterr().out
     written = pq.read_table(out)
     assert written.num_rows == 50
     assert written.column("workpiece_usage").null_count == 0
-    expected = full.take(pa.array(range(0, N_RUNS, 100)))
+    expected = rexroth_s01.take(pa.array(range(0, N_RUNS, 100)))
     assert written.equals(_as_parquet(expected))
 
     (src / "Ch_000000000009.json").write_text("{")

@@ -16,6 +16,7 @@ demo: $(VENV)/.built
 test: $(VENV)/.built
 	cargo test --workspace --exclude tightscan-python --all-targets
 	$(PY) -m pytest
+	$(PY) -m mypy python/tightscan
 	$(PY) -m mypy.stubtest tightscan._core --mypy-config-file pyproject.toml --allowlist tests/stubtest-allowlist.txt
 
 $(VENV)/.deps: pyproject.toml

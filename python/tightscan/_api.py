@@ -95,7 +95,8 @@ def detect_batch(
     if polars_in:
         import polars as pl
 
-        return pl.from_arrow(result)  # type: ignore[return-value]
+        frame: Any = pl.from_arrow(result)
+        return frame
     return result
 
 

@@ -13,7 +13,15 @@ import warnings
 
 from . import _core
 from ._api import ScanSummary, cusum_arl, cusum_threshold, detect_batch, read_results, scan_parquet, simulate
-from .config import BlockConfig, CusumConfig, DetectConfig, ElasticZoneConfig, FrictionConfig
+from .config import (
+    BlockConfig,
+    BreakConfig,
+    CusumConfig,
+    DetectConfig,
+    ElasticZoneConfig,
+    FrictionConfig,
+    ResidualTestConfig,
+)
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
 from .rexroth import read_rexroth
 
@@ -41,6 +49,8 @@ __all__ = [
     "ElasticZoneConfig",
     "BlockConfig",
     "FrictionConfig",
+    "BreakConfig",
+    "ResidualTestConfig",
     "TightscanError",
     "SchemaError",
     "InvalidParameterError",

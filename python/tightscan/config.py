@@ -16,6 +16,8 @@ __all__ = [
     "ElasticZoneConfig",
     "BlockConfig",
     "FrictionConfig",
+    "BreakConfig",
+    "ResidualTestConfig",
     "DetectConfig",
     "ConfigLike",
 ]
@@ -77,6 +79,32 @@ class BlockConfig:
 
 
 @dataclass(frozen=True)
+class BreakConfig:
+    """The sup-LR scan for one break of the elastic line (torque on angle) at any sample.
+
+    ``alpha`` is its false-alarm probability per tightening, from a shipped null table."""
+
+    alpha: float = _DEFAULTS["break_alpha"]
+
+
+@dataclass(frozen=True)
+class ResidualTestConfig:
+    """Tests on the residuals of the robust elastic line.
+
+    The first ``training_fraction`` of the window is the reference. The kernel-density test (L2
+    distance of Gaussian KDEs = biased squared MMD, block-permutation p-value) costs about 1 ms
+    per tightening and is off unless ``kde=True``. The k-sigma chart (``shewhart_k = 3``: the
+    classical 3-sigma test) is the baseline every report can compare with."""
+
+    training_fraction: float = _DEFAULTS["residual_training_fraction"]
+    kde: bool = _DEFAULTS["kde"]
+    kde_alpha: float = _DEFAULTS["kde_alpha"]
+    kde_permutations: int = _DEFAULTS["kde_permutations"]
+    kde_seed: int = _DEFAULTS["kde_seed"]
+    shewhart_k: float = _DEFAULTS["shewhart_k"]
+
+
+@dataclass(frozen=True)
 class DetectConfig:
     """All detection parameters."""
 
@@ -84,6 +112,8 @@ class DetectConfig:
     friction: FrictionConfig = field(default_factory=FrictionConfig)
     blocks: BlockConfig = field(default_factory=BlockConfig)
     cusum: CusumConfig = field(default_factory=CusumConfig)
+    breaks: BreakConfig = field(default_factory=BreakConfig)
+    residual_tests: ResidualTestConfig = field(default_factory=ResidualTestConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """The flat parameter dict the core reads."""
@@ -105,6 +135,13 @@ class DetectConfig:
             "kappa": self.cusum.kappa,
             "arl0": self.cusum.arl0,
             "threshold": self.cusum.threshold,
+            "break_alpha": self.breaks.alpha,
+            "residual_training_fraction": self.residual_tests.training_fraction,
+            "kde": self.residual_tests.kde,
+            "kde_alpha": self.residual_tests.kde_alpha,
+            "kde_permutations": self.residual_tests.kde_permutations,
+            "kde_seed": self.residual_tests.kde_seed,
+            "shewhart_k": self.residual_tests.shewhart_k,
         }
 
 

@@ -8,6 +8,8 @@ use arrow_select::concat::concat_batches;
 use rayon::prelude::*;
 
 use crate::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_p_value, sup_lr_scan};
+use crate::kde::{kde_change_test, KdeTestConfig, KdeWindow};
+use crate::shewhart::shewhart_scan;
 use crate::cusum::{cusum_threshold, CusumSide, TwoSidedCusum};
 #[cfg(test)]
 use crate::cusum::cusum_arl;
@@ -67,6 +69,31 @@ impl Default for BreakConfig {
     }
 }
 
+/// Tests on the residuals of the elastic line: the kernel-density (L2 / MMD) change test and
+/// the classical k-sigma chart.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ResidualTestConfig {
+    /// Share of the window's samples, from its start, that forms the reference.
+    pub training_fraction: f64,
+    /// Run the kernel-density test (about 1 ms per tightening with 199 permutations; off by
+    /// default so a batch keeps its speed).
+    pub kde: bool,
+    /// False-alarm probability per tightening of the kernel-density test.
+    pub kde_alpha: f64,
+    /// Permutations of the kernel-density test.
+    pub kde_permutations: usize,
+    /// Seed of the permutations; tightening `i` of a batch uses `seed + i`.
+    pub kde_seed: u64,
+    /// Limit of the k-sigma chart (3 for the classical chart).
+    pub shewhart_k: f64,
+}
+
+impl Default for ResidualTestConfig {
+    fn default() -> Self {
+        Self { training_fraction: 0.25, kde: false, kde_alpha: 0.01, kde_permutations: 199, kde_seed: 0, shewhart_k: 3.0 }
+    }
+}
+
 /// Everything `detect` needs.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DetectConfig {
@@ -82,6 +109,8 @@ pub struct DetectConfig {
     pub cusum: CusumConfig,
     /// Break scan.
     pub breaks: BreakConfig,
+    /// Residual tests (kernel density, k-sigma).
+    pub residual_tests: ResidualTestConfig,
 }
 
 /// Chi-square quantile by Wilson and Hilferty (1931): k (1 - 2/(9k) + z sqrt(2/(9k)))^3.
@@ -103,7 +132,26 @@ struct RowResult {
     phases: Option<PhaseRow>,
     friction: Option<FrictionRow>,
     breaks: Option<BreakRow>,
+    residual: Option<ResidualRow>,
     cusum: Option<CusumRow>,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct ResidualRow {
+    shewhart_alarm: bool,
+    shewhart_max_abs_z: f64,
+    shewhart_alarm_index: Option<usize>,
+    shewhart_alarm_angle: Option<f64>,
+    kde: Option<KdeRow>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct KdeRow {
+    alarm: bool,
+    statistic: f64,
+    p_value: f64,
+    change_index: Option<usize>,
+    change_angle: Option<f64>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -165,7 +213,7 @@ struct CusumAlarmRow {
 
 impl RowResult {
     fn failed(status: TighteningStatus, n_samples: usize) -> Self {
-        Self { status, n_samples, window: None, phases: None, friction: None, breaks: None, cusum: None }
+        Self { status, n_samples, window: None, phases: None, friction: None, breaks: None, residual: None, cusum: None }
     }
     fn alarm(&self) -> Option<&CusumAlarmRow> {
         self.cusum.as_ref().and_then(|c| c.alarm.as_ref())
@@ -186,6 +234,8 @@ struct Scratch {
     y: Vec<f64>,
     index: Vec<usize>,
     prefix: Vec<(f64, f64, f64, f64, f64)>,
+    line_residuals: Vec<f64>,
+    robust: Vec<f64>,
 }
 
 /// What the friction estimate can use for one tightening.
@@ -233,6 +283,22 @@ impl Detector {
         let y = config.yield_zone.gradient_fraction;
         if !(y > 0.0 && y < 1.0) {
             return Err(TightscanError::parameter("yield_gradient_fraction", format!("must be in (0, 1), got {y}")));
+        }
+        let r = &config.residual_tests;
+        if !(r.training_fraction > 0.0 && r.training_fraction < 1.0) {
+            return Err(TightscanError::parameter("residual_training_fraction", format!("must be in (0, 1), got {}", r.training_fraction)));
+        }
+        if !(r.kde_alpha > 0.0 && r.kde_alpha < 1.0) {
+            return Err(TightscanError::parameter("kde_alpha", format!("must be in (0, 1), got {}", r.kde_alpha)));
+        }
+        if r.kde && (r.kde_permutations as f64 + 1.0) * r.kde_alpha < 1.0 {
+            return Err(TightscanError::parameter(
+                "kde_permutations",
+                format!("{} permutations cannot give a p-value below kde_alpha = {}", r.kde_permutations, r.kde_alpha),
+            ));
+        }
+        if !(r.shewhart_k.is_finite() && r.shewhart_k > 0.0) {
+            return Err(TightscanError::parameter("shewhart_k", format!("must be > 0, got {}", r.shewhart_k)));
         }
         let a = config.breaks.alpha;
         if !(0.001..=0.5).contains(&a) {
@@ -380,10 +446,10 @@ impl Detector {
         }
         let friction = self.friction_input(table, i, scratch);
         match (angle, torque) {
-            (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, scratch),
-            (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, scratch),
-            (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, scratch),
-            (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, scratch),
+            (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, i, scratch),
+            (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, i, scratch),
+            (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, i, scratch),
+            (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, i, scratch),
         }
     }
 
@@ -447,6 +513,7 @@ impl Detector {
         angle: &[A],
         torque: &[T],
         friction: std::result::Result<FrictionInput, TighteningStatus>,
+        row: usize,
         s: &mut Scratch,
     ) -> RowResult {
         let n = angle.len();
@@ -489,6 +556,7 @@ impl Detector {
         let window_angles = (angle[window.start].to_f64(), angle[window.end - 1].to_f64());
         stop_ranges(angle, torque, window, &mut s.stops);
         let break_row = self.break_row(angle, torque, window, s);
+        let residual_row = self.residual_row(angle, row, s);
         // From here on a failure still reports the phases and the friction estimate: they need
         // far fewer samples than the detectors (a short real curve keeps its torque rate).
         // An unknown thread is named first: it is a fix to the data that applies to every row.
@@ -499,6 +567,7 @@ impl Detector {
             phases: Some(phase_row),
             friction: friction_row,
             breaks: break_row,
+            residual: residual_row,
             cusum: None,
         };
         let len = window.end - window.start;
@@ -607,6 +676,7 @@ impl Detector {
             phases: Some(phase_row),
             friction: friction_row,
             breaks: break_row,
+            residual: residual_row,
             cusum: Some(CusumRow {
                 alarm,
                 max_statistic: cusum.max_statistic(),
@@ -659,6 +729,50 @@ impl Detector {
             change_angle: angle[change_index].to_f64(),
             jump: scan.jump,
         })
+    }
+
+    /// Tests on the residuals of the robust elastic line over the samples the break scan used
+    /// (`s.x`, `s.y`, `s.index`): the k-sigma chart always, the kernel-density test when enabled.
+    /// The line is fitted to the whole window, so under no change the residuals are nearly
+    /// exchangeable, which the permutation test needs; a change leaves residuals whose level or
+    /// spread differs before and after it.
+    fn residual_row<A: Sample>(&self, angle: &[A], row: usize, s: &mut Scratch) -> Option<ResidualRow> {
+        let cfg = &self.config.residual_tests;
+        let line = crate::phases::robust_line(&s.x, &s.y, &mut s.robust)?;
+        s.line_residuals.clear();
+        s.line_residuals.extend(s.x.iter().zip(&s.y).map(|(x, y)| y - line.intercept - line.slope * x));
+        let n = s.line_residuals.len();
+        let training = ((cfg.training_fraction * n as f64).round() as usize).max(2);
+        let chart = shewhart_scan(&s.line_residuals, training, cfg.shewhart_k).ok()?;
+        let at = |k: usize| (s.index[k], angle[s.index[k]].to_f64());
+        let mut out = ResidualRow {
+            shewhart_alarm: chart.alarm_index.is_some(),
+            shewhart_max_abs_z: chart.max_abs_z,
+            shewhart_alarm_index: chart.alarm_index.map(|k| at(k).0),
+            shewhart_alarm_angle: chart.alarm_index.map(|k| at(k).1),
+            kde: None,
+        };
+        if cfg.kde {
+            // Sliding windows as wide as the reference: twice the power of a growing window for
+            // a change in mid-window (kde.rs tests), at the same exact size.
+            let test = KdeTestConfig {
+                alpha: cfg.kde_alpha,
+                permutations: cfg.kde_permutations,
+                window: KdeWindow::Sliding { width: training.max(20) },
+                seed: cfg.kde_seed.wrapping_add(row as u64),
+                ..KdeTestConfig::default()
+            };
+            if let Ok(k) = kde_change_test(&s.line_residuals, training, &test) {
+                out.kde = Some(KdeRow {
+                    alarm: k.alarm,
+                    statistic: k.statistic,
+                    p_value: k.p_value,
+                    change_index: k.change_start.map(|c| at(c).0),
+                    change_angle: k.change_start.map(|c| at(c).1),
+                });
+            }
+        }
+        Some(out)
     }
 
     /// Friction coefficient and nut factor over the elastic window. With clamp force: the robust
@@ -767,6 +881,15 @@ fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         i(|r| r.breaks.map(|b| b.change_index as i64)),
         f(|r| r.breaks.map(|b| b.change_angle)),
         f(|r| r.breaks.map(|b| b.jump)),
+        b(|r| r.residual.and_then(|k| k.kde).map(|k| k.alarm)),
+        f(|r| r.residual.and_then(|k| k.kde).map(|k| k.statistic)),
+        f(|r| r.residual.and_then(|k| k.kde).map(|k| k.p_value)),
+        i(|r| r.residual.and_then(|k| k.kde).and_then(|k| k.change_index).map(|v| v as i64)),
+        f(|r| r.residual.and_then(|k| k.kde).and_then(|k| k.change_angle)),
+        b(|r| r.residual.map(|k| k.shewhart_alarm)),
+        f(|r| r.residual.map(|k| k.shewhart_max_abs_z)),
+        i(|r| r.residual.and_then(|k| k.shewhart_alarm_index).map(|v| v as i64)),
+        f(|r| r.residual.and_then(|k| k.shewhart_alarm_angle)),
     ]
 }
 

@@ -222,6 +222,15 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("break_change_index", ResultType::Int64, "", "sample index of the most likely break"),
     ("break_change_angle", ResultType::Float64, "deg", "angle of the most likely break"),
     ("break_jump", ResultType::Float64, "Nm", "torque jump of the two fitted lines at the break"),
+    ("kde_alarm", ResultType::Boolean, "", "kernel-density change test of the line residuals fired at kde_alpha (null unless enabled)"),
+    ("kde_statistic", ResultType::Float64, "", "largest standardised L2 distance (biased squared MMD) between reference and window"),
+    ("kde_p_value", ResultType::Float64, "", "block-permutation p-value of kde_statistic"),
+    ("kde_change_index", ResultType::Int64, "", "sample index where the residual distribution changes"),
+    ("kde_change_angle", ResultType::Float64, "deg", "angle where the residual distribution changes"),
+    ("shewhart_alarm", ResultType::Boolean, "", "classical baseline: a line residual beyond shewhart_k training sigmas"),
+    ("shewhart_max_abs_z", ResultType::Float64, "sigma", "largest standardised line residual after the reference"),
+    ("shewhart_alarm_index", ResultType::Int64, "", "sample index of the first residual beyond the limit"),
+    ("shewhart_alarm_angle", ResultType::Float64, "deg", "angle of the first residual beyond the limit"),
 ];
 
 /// Arrow type of a result column.

@@ -40,6 +40,13 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "d2_mm" => c.friction.d2_mm = Some(get(py, &key, &v)?),
             "dkm_mm" => c.friction.dkm_mm = Some(get(py, &key, &v)?),
             "joint_stiffness" => c.friction.joint_stiffness = Some(get(py, &key, &v)?),
+            "break_alpha" => c.breaks.alpha = get(py, &key, &v)?,
+            "residual_training_fraction" => c.residual_tests.training_fraction = get(py, &key, &v)?,
+            "kde" => c.residual_tests.kde = get(py, &key, &v)?,
+            "kde_alpha" => c.residual_tests.kde_alpha = get(py, &key, &v)?,
+            "kde_permutations" => c.residual_tests.kde_permutations = get(py, &key, &v)?,
+            "kde_seed" => c.residual_tests.kde_seed = get(py, &key, &v)?,
+            "shewhart_k" => c.residual_tests.shewhart_k = get(py, &key, &v)?,
             "max_blocks" => c.blocks.max_blocks = get(py, &key, &v)?,
             "min_block_samples" => c.blocks.min_block_samples = get(py, &key, &v)?,
             "training_fraction" => c.blocks.training_fraction = get(py, &key, &v)?,
@@ -66,6 +73,13 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("d2_mm", c.friction.d2_mm)?;
     d.set_item("dkm_mm", c.friction.dkm_mm)?;
     d.set_item("joint_stiffness", c.friction.joint_stiffness)?;
+    d.set_item("break_alpha", c.breaks.alpha)?;
+    d.set_item("residual_training_fraction", c.residual_tests.training_fraction)?;
+    d.set_item("kde", c.residual_tests.kde)?;
+    d.set_item("kde_alpha", c.residual_tests.kde_alpha)?;
+    d.set_item("kde_permutations", c.residual_tests.kde_permutations)?;
+    d.set_item("kde_seed", c.residual_tests.kde_seed)?;
+    d.set_item("shewhart_k", c.residual_tests.shewhart_k)?;
     d.set_item("max_blocks", c.blocks.max_blocks)?;
     d.set_item("min_block_samples", c.blocks.min_block_samples)?;
     d.set_item("training_fraction", c.blocks.training_fraction)?;

@@ -144,3 +144,35 @@ def test_simulate_is_reproducible_and_labelled() -> None:
     assert not a.equals(c)
     assert set(ta.column_names) >= {"tightening_id", "has_change", "fault_kind", "magnitude", "onset_angle"}
     assert ta.column("tightening_id").equals(a.column("tightening_id"))
+
+
+def test_simulate_ranges_yield_and_effects() -> None:
+    curves, truth = tightscan.simulate(
+        30,
+        seed=2,
+        mu_th_range=(0.08, 0.09),
+        mu_b_range=(0.15, 0.15),
+        joint_stiffness_range=(0.5, 0.5),
+        onset_fraction_range=(0.4, 0.4),
+        with_yield=True,
+        speed_friction=0.05,
+        runout=0.01,
+        prevailing_torque_nm=1.0,
+    )
+    assert all(0.08 <= m <= 0.09 for m in truth.column("mu_th").to_pylist())
+    assert set(truth.column("mu_b").to_pylist()) == {0.15}
+    assert set(truth.column("joint_stiffness").to_pylist()) == {0.5}
+    assert set(truth.column("effects").to_pylist()) == {"speed_friction,prevailing_torque_nm,runout"}
+    assert truth.column("runout_phase").null_count == 0
+    assert truth.column("yield_angle").null_count < 30
+    assert {"mu_tot", "thread", "prevailing_torque"} <= set(truth.column_names)
+    assert truth.column("thread").equals(curves.column("thread"))
+    _, plain = tightscan.simulate(30, seed=2)
+    assert set(plain.column("effects").to_pylist()) == {""}
+    assert plain.column("yield_angle").null_count == 30
+    with pytest.raises(tightscan.InvalidParameterError) as e:
+        tightscan.simulate(5, runout=1.5)
+    assert e.value.parameter == "runout"
+    with pytest.raises(tightscan.InvalidParameterError) as e:
+        tightscan.simulate(5, mu_th_range=(0.2, 0.1))
+    assert e.value.parameter == "mu_th_range"

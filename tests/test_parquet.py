@@ -98,3 +98,17 @@ def test_long_layout_split_handles_empty_batches() -> None:
     batch = pa.record_batch({"tightening_id": [1, 1, 2, 2], "angle": [0.0, 1.0, 0.0, 1.0]})
     done, carry = _split_trailing_tightening(batch)
     assert done.column(0).to_pylist() == [1, 1] and carry.column(0).to_pylist() == [2, 2]
+
+
+def test_cli_simulate_effects_and_ranges(tmp_path: Path) -> None:
+    data = tmp_path / "fx.parquet"
+    args = ["simulate", "-n", "25", "-o", str(data), "--mu-th-range", "0.11", "0.11", "--with-yield"]
+    args += ["--effect", "runout=0.02", "--effect", "torque_lowpass_ms=3", "--joint-stiffness-range", "0.4", "0.6"]
+    assert main(args) == 0
+    truth = pq.read_table(tmp_path / "fx-truth.parquet")
+    assert set(truth.column("mu_th").to_pylist()) == {0.11}
+    assert set(truth.column("effects").to_pylist()) == {"torque_lowpass_ms,runout"}
+    assert all(0.4 <= k <= 0.6 for k in truth.column("joint_stiffness").to_pylist())
+    with pytest.raises(SystemExit):
+        main(["simulate", "-n", "5", "-o", str(data), "--effect", "bogus=1"])
+    assert main(["simulate", "-n", "5", "-o", str(data), "--effect", "runout=2"]) == 2

@@ -9,6 +9,8 @@
 //! | `detect`    | `tightenings/1000`    | `simulate(n = 1000, seed = 7)`, default config    | samples (all rows)  |
 //! | `detect`    | `tightenings/10000`   | `simulate(n = 10000, seed = 7)`, default config   | samples (all rows)  |
 //! | `simulate`  | `tightenings/1000`    | `SimulationConfig { n: 1000, seed: 7, .. }`       | tightenings         |
+//! | `simulate`  | `tightenings/10000`   | `SimulationConfig { n: 10000, seed: 7, .. }`      | tightenings + bytes |
+//! | `simulate`  | `all_effects/10000`   | as above, `EffectsConfig::all_on()`, `with_yield` | tightenings + bytes |
 //! | `stages`    | see below             | `simulate(n = 1000, seed = 7)`, one thread        | samples (all rows)  |
 //!
 //! `stages` splits one tightening's analysis into the public building blocks `Detector::detect`
@@ -21,6 +23,12 @@
 //! The CUSUM uses kappa = 0.5 and the threshold of the default detector (two-sided ARL0 = 3,000
 //! blocks, h ~ 6.4). The recursion keeps running after the first alarm, so every increment
 //! costs the same whether or not the series alarms.
+//!
+//! The two `simulate` cases at n = 10,000 also report bytes/s: the bytes are those of the four
+//! float32 channels generated (16 per sample), so samples/s = bytes/s / 16; the setup prints the
+//! samples per tightening of each case. `all_effects` switches on every effect of
+//! `EffectsConfig::all_on()` (speed and pressure friction, 2 ms low-pass, 2e-4 kg m^2 inertia,
+//! 1 Nm prevailing torque, 1 % run-out) and the yield zone.
 //!
 //! `detect` and `simulate` run on rayon's global pool (all cores; set `RAYON_NUM_THREADS` to
 //! pin it). A detect sample is one (angle, torque) pair; the throughput counts every sample of
@@ -42,7 +50,7 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use tightscan_core::cusum::{cusum_threshold, TwoSidedCusum};
 use tightscan_core::input::{ChannelRow, Samples, TighteningTable};
 use tightscan_core::signal::{block_count, block_stats, elastic_window, stop_ranges, Blocks, ElasticWindow};
-use tightscan_core::simulate::{simulate, SimulationConfig};
+use tightscan_core::simulate::{simulate, EffectsConfig, SimulationConfig};
 use tightscan_core::{DetectConfig, Detector};
 
 /// CUSUM series lengths.
@@ -53,6 +61,10 @@ const CUSUM_SEED: u64 = 42;
 const DETECT_SIZES: [usize; 2] = [1_000, 10_000];
 /// Tightenings per simulate call.
 const SIMULATE_SIZE: usize = 1_000;
+/// Tightenings per simulate call of the default / all-effects comparison.
+const SIMULATE_LARGE: usize = 10_000;
+/// Bytes generated per sample: four float32 channels (angle, torque, time, speed).
+const SIMULATE_BYTES_PER_SAMPLE: u64 = 16;
 /// Seed of the simulated tightenings.
 const SIM_SEED: u64 = 7;
 
@@ -116,6 +128,23 @@ fn bench_simulate(c: &mut Criterion) {
     group.bench_with_input(BenchmarkId::new("tightenings", SIMULATE_SIZE), &cfg, |b, cfg| {
         b.iter(|| simulate(black_box(cfg)));
     });
+    group.sample_size(10).measurement_time(Duration::from_secs(10));
+    let large = SimulationConfig { n: SIMULATE_LARGE, ..cfg };
+    let all_effects = SimulationConfig { effects: EffectsConfig::all_on(), with_yield: true, ..large.clone() };
+    for (name, config) in [("tightenings", large), ("all_effects", all_effects)] {
+        let samples = total_samples(&simulate(&config).expect("bench setup: simulate failed").tightenings);
+        eprintln!(
+            "simulate/{name}/{SIMULATE_LARGE}: {samples} samples, {:.0} per tightening",
+            samples as f64 / SIMULATE_LARGE as f64
+        );
+        group.throughput(Throughput::ElementsAndBytes {
+            elements: SIMULATE_LARGE as u64,
+            bytes: samples * SIMULATE_BYTES_PER_SAMPLE,
+        });
+        group.bench_with_input(BenchmarkId::new(name, SIMULATE_LARGE), &config, |b, cfg| {
+            b.iter(|| simulate(black_box(cfg)));
+        });
+    }
     group.finish();
 }
 

@@ -109,8 +109,23 @@ def simulate(
     fault_kinds: Sequence[str] | None = None,
     fault_components: Sequence[str] | None = None,
     magnitude_range: tuple[float, float] | None = None,
+    onset_fraction_range: tuple[float, float] | None = None,
+    mu_th_range: tuple[float, float] | None = None,
+    mu_b_range: tuple[float, float] | None = None,
+    joint_stiffness_range: tuple[float, float] | None = None,
+    elastic_angle_range: tuple[float, float] | None = None,
+    with_yield: bool = False,
+    yield_preload_range: tuple[float, float] | None = None,
+    yield_gradient_ratio: float | None = None,
+    speed_friction: float | None = None,
+    torque_lowpass_ms: float | None = None,
+    inertia: float | None = None,
+    pressure_friction: float | None = None,
+    prevailing_torque_nm: float | None = None,
+    runout: float | None = None,
     threads: Sequence[str] | None = None,
     torque_noise: float | None = None,
+    clamp_force_noise: float | None = None,
     angle_resolution_deg: float | None = None,
     sample_rate_hz: float | None = None,
     with_clamp_force: bool = False,
@@ -120,7 +135,27 @@ def simulate(
 
     Returns ``(tightenings, truth)``: the tightenings in the nested contract layout, and per
     tightening the ground truth (``has_change``, ``fault_kind``, ``magnitude``,
-    ``onset_angle`` ...). Unset parameters take the simulator's defaults.
+    ``onset_angle``, ``mu_th``, ``mu_b``, ``mu_tot``, ``joint_stiffness``, ``yield_angle``,
+    ``prevailing_torque``, ``effects`` ...). Unset parameters take the simulator's defaults.
+
+    Ranges are ``(lo, hi)`` drawn uniformly per tightening; equal ends fix the value:
+    ``onset_fraction_range`` (fault onset as a fraction of the elastic zone, default
+    (0.30, 0.85)), ``mu_th_range`` / ``mu_b_range`` (thread / head friction, default
+    (0.10, 0.20)), ``joint_stiffness_range`` [kN/deg] (default: derived from the thread size
+    through ``elastic_angle_range`` [deg], default (20, 120), hard to soft).
+    ``with_yield`` adds a yield zone: the bolt yields at ``yield_preload_range`` (fraction of
+    the fault-free final preload, default (0.80, 0.95)) and the gradient falls to
+    ``yield_gradient_ratio`` (default 0.15) of the elastic one.
+
+    Effects, all off (0) by default: ``speed_friction`` a in mu (1 + a ln(v / 30 rpm)),
+    ``torque_lowpass_ms`` [ms] first-order low-pass of the torque channel, ``inertia``
+    J [kg m^2] adding J * angular acceleration to the measured torque, ``pressure_friction``
+    c in mu (1 + c (F / F_target - 1)), ``prevailing_torque_nm`` [Nm] of a locking element
+    (the target is raised by it), ``runout`` r in torque * (1 + r sin(angle + phase)).
+
+    >>> curves, truth = simulate(20, seed=1, runout=0.02, with_yield=True)
+    >>> truth.column("effects")[0].as_py()
+    'runout'
     """
     params: dict[str, Any] = {
         "n": n,
@@ -130,8 +165,23 @@ def simulate(
         "fault_kinds": list(fault_kinds) if fault_kinds is not None else None,
         "fault_components": list(fault_components) if fault_components is not None else None,
         "magnitude_range": tuple(magnitude_range) if magnitude_range is not None else None,
+        "onset_fraction_range": tuple(onset_fraction_range) if onset_fraction_range is not None else None,
+        "mu_th_range": tuple(mu_th_range) if mu_th_range is not None else None,
+        "mu_b_range": tuple(mu_b_range) if mu_b_range is not None else None,
+        "joint_stiffness_range": tuple(joint_stiffness_range) if joint_stiffness_range is not None else None,
+        "elastic_angle_range": tuple(elastic_angle_range) if elastic_angle_range is not None else None,
+        "with_yield": with_yield,
+        "yield_preload_range": tuple(yield_preload_range) if yield_preload_range is not None else None,
+        "yield_gradient_ratio": yield_gradient_ratio,
+        "speed_friction": speed_friction,
+        "torque_lowpass_ms": torque_lowpass_ms,
+        "inertia": inertia,
+        "pressure_friction": pressure_friction,
+        "prevailing_torque_nm": prevailing_torque_nm,
+        "runout": runout,
         "threads": list(threads) if threads is not None else None,
         "torque_noise": torque_noise,
+        "clamp_force_noise": clamp_force_noise,
         "angle_resolution_deg": angle_resolution_deg,
         "sample_rate_hz": sample_rate_hz,
         "with_clamp_force": with_clamp_force,

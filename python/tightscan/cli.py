@@ -17,6 +17,15 @@ from .exceptions import TightscanError
 from .rexroth import write_rexroth
 
 SIMULATE_CHUNK = 10_000
+# Switchable effects of the simulator (`--effect NAME=VALUE`), with their units; 0 is off.
+EFFECTS = {
+    "speed_friction": "a in mu (1 + a ln(v / 30 rpm)), |a| <= 0.25",
+    "torque_lowpass_ms": "low-pass time constant of the torque channel [ms]",
+    "inertia": "rotational inertia J [kg m^2], adds J * angular acceleration to the torque",
+    "pressure_friction": "c in mu (1 + c (F / F_target - 1)), |c| < 1",
+    "prevailing_torque_nm": "prevailing torque of a locking element [Nm]",
+    "runout": "once-per-revolution run-out amplitude r, torque * (1 + r sin(angle + phase))",
+}
 
 
 def _config(args: argparse.Namespace) -> DetectConfig:
@@ -124,8 +133,25 @@ def write_simulation(n: int, seed: int, output: str, truth_output: str | None, *
             truth_writer.close()
 
 
+def _effect(text: str) -> tuple[str, float]:
+    """`NAME=VALUE` of `--effect`."""
+    name, sep, value = text.partition("=")
+    name = name.strip()
+    if not sep or name not in EFFECTS:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with NAME one of {', '.join(EFFECTS)}, got {text!r}")
+    try:
+        return name, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not a number") from None
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     truth = args.truth or str(Path(args.output).with_name(Path(args.output).stem + "-truth.parquet"))
+    ranges = {
+        key: tuple(getattr(args, key))
+        for key in ("magnitude_range", "onset_fraction_range", "mu_th_range", "mu_b_range", "joint_stiffness_range")
+        if getattr(args, key) is not None
+    }
     write_simulation(
         args.n,
         args.seed,
@@ -133,6 +159,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         truth,
         with_clamp_force=args.clamp_force,
         fault_fraction=args.fault_fraction,
+        with_yield=args.with_yield,
+        **ranges,
+        **dict(args.effect or []),
     )
     print(f"wrote {args.n:,} tightenings to {args.output} and their ground truth to {truth}")
     return 0
@@ -209,6 +238,22 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--fault-fraction", type=float, default=0.5)
     sim.add_argument("--clamp-force", action="store_true", help="add a clamp_force channel")
+    for flag, what in [
+        ("--magnitude-range", "|relative change| of mu of a fault (default 0.05 0.30)"),
+        ("--onset-fraction-range", "fault onset as a fraction of the elastic zone (default 0.30 0.85)"),
+        ("--mu-th-range", "thread friction coefficient (default 0.10 0.20)"),
+        ("--mu-b-range", "head (bearing) friction coefficient (default 0.10 0.20)"),
+        ("--joint-stiffness-range", "joint stiffness [kN/deg] (default: from the thread size, 20-120 deg elastic angle)"),
+    ]:
+        sim.add_argument(flag, nargs=2, type=float, metavar=("LO", "HI"), default=None, help=f"{what}; LO = HI fixes it")
+    sim.add_argument("--with-yield", action="store_true", help="bolts yield before the target (yield zone)")
+    sim.add_argument(
+        "--effect",
+        action="append",
+        type=_effect,
+        metavar="NAME=VALUE",
+        help="switch an effect on (repeatable): " + "; ".join(f"{k}: {v}" for k, v in EFFECTS.items()),
+    )
     sim.set_defaults(func=cmd_simulate)
 
     demo = sub.add_parser("demo", help="scan the built-in dataset and compare with its ground truth")

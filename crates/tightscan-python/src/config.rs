@@ -97,7 +97,10 @@ fn parse_list<T: std::str::FromStr>(py: Python<'_>, key: &str, names: Vec<String
         .collect()
 }
 
-/// Dict of simulation parameters to [`SimulationConfig`], validated.
+/// Dict of simulation parameters to [`SimulationConfig`], validated. Keys are the field names;
+/// the effects are flat keys named as the fields of `EffectsConfig` (`speed_friction`,
+/// `torque_lowpass_ms`, `inertia`, `pressure_friction`, `prevailing_torque_nm`, `runout`).
+/// `None` values keep the default (for `joint_stiffness_range`: derived from the thread).
 pub fn simulation_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<SimulationConfig> {
     let mut c = SimulationConfig::default();
     if let Some(dict) = dict {
@@ -118,8 +121,24 @@ pub fn simulation_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<Simulatio
                     c.fault_components = parse_list::<FaultComponent>(py, &key, get(py, &key, &v)?)?
                 }
                 "magnitude_range" => c.magnitude_range = get(py, &key, &v)?,
+                "onset_fraction_range" => c.onset_fraction_range = get(py, &key, &v)?,
+                "mu_th_range" => c.mu_th_range = get(py, &key, &v)?,
+                "mu_b_range" => c.mu_b_range = get(py, &key, &v)?,
+                "joint_stiffness_range" => c.joint_stiffness_range = Some(get(py, &key, &v)?),
+                "elastic_angle_range" => c.elastic_angle_range = get(py, &key, &v)?,
+                "with_yield" => c.with_yield = get(py, &key, &v)?,
+                "yield_preload_range" => c.yield_preload_range = get(py, &key, &v)?,
+                "yield_gradient_ratio" => c.yield_gradient_ratio = get(py, &key, &v)?,
+                // Effects: flat keys named as the EffectsConfig fields; 0 switches one off.
+                "speed_friction" => c.effects.speed_friction = get(py, &key, &v)?,
+                "torque_lowpass_ms" => c.effects.torque_lowpass_ms = get(py, &key, &v)?,
+                "inertia" => c.effects.inertia = get(py, &key, &v)?,
+                "pressure_friction" => c.effects.pressure_friction = get(py, &key, &v)?,
+                "prevailing_torque_nm" => c.effects.prevailing_torque_nm = get(py, &key, &v)?,
+                "runout" => c.effects.runout = get(py, &key, &v)?,
                 "threads" => c.threads = get(py, &key, &v)?,
                 "torque_noise" => c.torque_noise = get(py, &key, &v)?,
+                "clamp_force_noise" => c.clamp_force_noise = get(py, &key, &v)?,
                 "angle_resolution_deg" => c.angle_resolution_deg = get(py, &key, &v)?,
                 "sample_rate_hz" => c.sample_rate_hz = get(py, &key, &v)?,
                 "with_clamp_force" => c.with_clamp_force = get(py, &key, &v)?,

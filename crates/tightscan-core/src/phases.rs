@@ -301,11 +301,26 @@ pub fn find_phases<A: Sample, T: Sample>(
     // the yield test (yield can only be near the top).
     let half = ElasticWindow { start: window.start, end: window.start + (window.end - window.start) / 2, peak };
     let elastic = fit(angle, torque, half, scratch).ok_or(WindowError::AngleStuck)?;
-    let yield_angle = find_yield(angle, torque, window.start, i_peak, elastic.slope, yield_cfg, scratch);
+    let yield_angle = find_yield(angle, torque, window.start, i_peak, elastic.slope, yield_cfg, scratch).map(|ya| {
+        // The gradient test fires well into a gradual yield transition (where the gradient has
+        // halved). Walk back to where the curve leaves the elastic line: the last sample before
+        // it whose shortfall below the line is within 2 robust sigmas; every later sample up to
+        // the gradient onset falls short by more.
+        let (a0, t0) = (angle[half.start].to_f64(), torque[half.start].to_f64());
+        let shortfall = |i: usize| elastic.intercept + elastic.slope * (angle[i].to_f64() - a0) - (torque[i].to_f64() - t0);
+        let limit = 2.0 * elastic.scale;
+        let mut k = (half.end..=i_peak).find(|&i| angle[i].to_f64() >= ya).unwrap_or(i_peak);
+        while k > half.end && shortfall(k - 1) > limit {
+            k -= 1;
+        }
+        angle[k].to_f64().min(ya)
+    });
     if let Some(ya) = yield_angle {
-        // Cut the window at yield, keeping the same trim margin below it.
+        // Cut the window below yield by twice the trim margin: the detected onset still lies a
+        // few degrees into a gradual transition (2.7 deg median on simulated curves whose gradient
+        // falls over a tenth of the elastic angle), and a bent end would read as a friction change.
         let span = angle[window.end - 1].to_f64() - angle[window.start].to_f64();
-        let limit = ya - zone.trim_fraction * span;
+        let limit = ya - 2.0 * zone.trim_fraction * span;
         while window.end > window.start && angle[window.end - 1].to_f64() > limit {
             window.end -= 1;
         }

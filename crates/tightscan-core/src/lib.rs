@@ -3,10 +3,12 @@
 //! Pure Rust, no Python: the `tightscan-python` crate only converts types and errors.
 #![doc = include_str!("../README.md")]
 
+pub mod critical_values;
 pub mod cusum;
 pub mod detect;
 pub mod error;
 pub mod input;
+pub mod monitor;
 pub mod schema;
 pub mod signal;
 pub mod simulate;

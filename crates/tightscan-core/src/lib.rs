@@ -4,11 +4,13 @@
 #![doc = include_str!("../README.md")]
 
 pub mod breakpoint;
+pub mod critical_values;
 pub mod cusum;
 pub mod detect;
 pub mod error;
 pub mod input;
 pub mod kde;
+pub mod monitor;
 pub mod phases;
 pub mod schema;
 pub mod shewhart;

@@ -17,6 +17,8 @@ __all__ = [
     "BlockConfig",
     "FrictionConfig",
     "BreakConfig",
+    "L1Config",
+    "DecisionConfig",
     "ResidualTestConfig",
     "DetectConfig",
     "ConfigLike",
@@ -29,12 +31,13 @@ _DEFAULTS: dict[str, Any] = _core.default_config()
 class CusumConfig:
     """Two-sided CUSUM on the standardised block torque rate (sigma units).
 
-    ``threshold`` (h) is derived from ``arl0``, the in-control average run length in blocks, by
+    ``threshold`` (h) is derived from ``arl0``, the in-control average run length in blocks
+    (by default from the CUSUM's share of the decision rule's alpha), by
     Siegmund's approximation, unless given explicitly.
     """
 
     kappa: float = _DEFAULTS["kappa"]
-    arl0: float = _DEFAULTS["arl0"]
+    arl0: float | None = _DEFAULTS["arl0"]
     threshold: float | None = _DEFAULTS["threshold"]
 
 
@@ -82,9 +85,39 @@ class BlockConfig:
 class BreakConfig:
     """The sup-LR scan for one break of the elastic line (torque on angle) at any sample.
 
-    ``alpha`` is its false-alarm probability per tightening, from a shipped null table."""
+    ``alpha`` is its false-alarm probability per tightening, from a shipped null table; ``None``
+    takes its share of the decision rule's alpha. A quantised angle encoder makes torque steps
+    of one encoder increment (torque rate x resolution); a break is credited only when its jump
+    exceeds ``min_jump_steps`` of them (or its statistic is twice the critical value)."""
 
-    alpha: float = _DEFAULTS["break_alpha"]
+    alpha: float | None = _DEFAULTS["break_alpha"]
+    min_jump_steps: float = _DEFAULTS["break_min_jump_steps"]
+
+
+@dataclass(frozen=True)
+class L1Config:
+    """L1 (sign-residual) sequential monitoring of the elastic line (Huskova and Koubkova):
+    torque on angle, or on clamp force when present, trained on the start of the window, with
+    the boundary c sqrt(m) (1 + k/m) (k/(m+k))^gamma. ``gamma`` must be a table value (0, 0.1,
+    0.15, 0.25, 0.35, 0.45, 0.49); ``alpha=None`` takes its share of the rule's alpha."""
+
+    gamma: float = _DEFAULTS["l1_gamma"]
+    alpha: float | None = _DEFAULTS["l1_alpha"]
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """How the detectors decide ``change_detected``.
+
+    ``alpha`` is the false-alarm probability per tightening of the decision. With ``rule="any"``
+    each detector of ``detectors`` gets a weighted share of it (break 3, others 1), so the
+    union bound keeps the rule at or below ``alpha``; ``"K-of-n"`` (e.g. ``"2-of-n"``) asks K
+    detectors to agree, a subset of those alarms. Detectors: ``break`` (sup-LR scan), ``l1``,
+    ``cusum``, ``kde`` (needs ``ResidualTestConfig(kde=True)``)."""
+
+    alpha: float = _DEFAULTS["alpha"]
+    rule: str = _DEFAULTS["rule"]
+    detectors: tuple[str, ...] = tuple(_DEFAULTS["detectors"])
 
 
 @dataclass(frozen=True)
@@ -98,7 +131,7 @@ class ResidualTestConfig:
 
     training_fraction: float = _DEFAULTS["residual_training_fraction"]
     kde: bool = _DEFAULTS["kde"]
-    kde_alpha: float = _DEFAULTS["kde_alpha"]
+    kde_alpha: float | None = _DEFAULTS["kde_alpha"]
     kde_permutations: int = _DEFAULTS["kde_permutations"]
     kde_seed: int = _DEFAULTS["kde_seed"]
     shewhart_k: float = _DEFAULTS["shewhart_k"]
@@ -113,6 +146,8 @@ class DetectConfig:
     blocks: BlockConfig = field(default_factory=BlockConfig)
     cusum: CusumConfig = field(default_factory=CusumConfig)
     breaks: BreakConfig = field(default_factory=BreakConfig)
+    l1: L1Config = field(default_factory=L1Config)
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
     residual_tests: ResidualTestConfig = field(default_factory=ResidualTestConfig)
 
     def to_dict(self) -> dict[str, Any]:
@@ -136,6 +171,12 @@ class DetectConfig:
             "arl0": self.cusum.arl0,
             "threshold": self.cusum.threshold,
             "break_alpha": self.breaks.alpha,
+            "break_min_jump_steps": self.breaks.min_jump_steps,
+            "l1_gamma": self.l1.gamma,
+            "l1_alpha": self.l1.alpha,
+            "alpha": self.decision.alpha,
+            "rule": self.decision.rule,
+            "detectors": list(self.decision.detectors),
             "residual_training_fraction": self.residual_tests.training_fraction,
             "kde": self.residual_tests.kde,
             "kde_alpha": self.residual_tests.kde_alpha,

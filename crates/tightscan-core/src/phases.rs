@@ -316,11 +316,11 @@ pub fn find_phases<A: Sample, T: Sample>(
         angle[k].to_f64().min(ya)
     });
     if let Some(ya) = yield_angle {
-        // Cut the window below yield by twice the trim margin: the detected onset still lies a
-        // few degrees into a gradual transition (2.7 deg median on simulated curves whose gradient
+        // Cut the window a tenth of its span below yield: the detected onset still lies a few
+        // degrees into a gradual transition (2.7 deg median on simulated curves whose gradient
         // falls over a tenth of the elastic angle), and a bent end would read as a friction change.
         let span = angle[window.end - 1].to_f64() - angle[window.start].to_f64();
-        let limit = ya - 2.0 * zone.trim_fraction * span;
+        let limit = ya - 0.1 * span;
         while window.end > window.start && angle[window.end - 1].to_f64() > limit {
             window.end -= 1;
         }

@@ -4,6 +4,7 @@
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyDictMethods};
 use tightscan_core::simulate::{FaultComponent, FaultKind, SimulationConfig, Strategy};
+use tightscan_core::detect::{DecisionRule, DetectorKind};
 use tightscan_core::{DetectConfig, TightscanError};
 
 use crate::errors::to_py_err;
@@ -26,7 +27,8 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
     let py = dict.py();
     for (k, v) in dict.iter() {
         let key: String = k.extract()?;
-        if v.is_none() && key != "threshold" {
+        // None keeps a default, except where None itself is a setting (derive from alpha).
+        if v.is_none() && !matches!(key.as_str(), "threshold" | "arl0" | "break_alpha" | "kde_alpha" | "l1_alpha") {
             continue;
         }
         match key.as_str() {
@@ -41,6 +43,21 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "dkm_mm" => c.friction.dkm_mm = Some(get(py, &key, &v)?),
             "joint_stiffness" => c.friction.joint_stiffness = Some(get(py, &key, &v)?),
             "break_alpha" => c.breaks.alpha = get(py, &key, &v)?,
+            "break_min_jump_steps" => c.breaks.min_jump_steps = get(py, &key, &v)?,
+            "l1_alpha" => c.l1.alpha = get(py, &key, &v)?,
+            "l1_gamma" => c.l1.gamma = get(py, &key, &v)?,
+            "alpha" => c.decision.alpha = get(py, &key, &v)?,
+            "rule" => c.decision.rule = parse_rule(py, &get::<String>(py, &key, &v)?)?,
+            "detectors" => {
+                let names: Vec<String> = get(py, &key, &v)?;
+                c.decision.detectors = names
+                    .iter()
+                    .map(|n| {
+                        DetectorKind::parse(n)
+                            .ok_or_else(|| bad(py, "detectors", format!("unknown detector '{n}' (break, l1, cusum, kde)")))
+                    })
+                    .collect::<PyResult<_>>()?;
+            }
             "residual_training_fraction" => c.residual_tests.training_fraction = get(py, &key, &v)?,
             "kde" => c.residual_tests.kde = get(py, &key, &v)?,
             "kde_alpha" => c.residual_tests.kde_alpha = get(py, &key, &v)?,
@@ -74,6 +91,18 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("dkm_mm", c.friction.dkm_mm)?;
     d.set_item("joint_stiffness", c.friction.joint_stiffness)?;
     d.set_item("break_alpha", c.breaks.alpha)?;
+    d.set_item("break_min_jump_steps", c.breaks.min_jump_steps)?;
+    d.set_item("l1_alpha", c.l1.alpha)?;
+    d.set_item("l1_gamma", c.l1.gamma)?;
+    d.set_item("alpha", c.decision.alpha)?;
+    d.set_item(
+        "rule",
+        match c.decision.rule {
+            DecisionRule::Any => "any".to_string(),
+            DecisionRule::AtLeast(k) => format!("{k}-of-n"),
+        },
+    )?;
+    d.set_item("detectors", c.decision.detectors.iter().map(|k| k.as_str()).collect::<Vec<_>>())?;
     d.set_item("residual_training_fraction", c.residual_tests.training_fraction)?;
     d.set_item("kde", c.residual_tests.kde)?;
     d.set_item("kde_alpha", c.residual_tests.kde_alpha)?;
@@ -88,6 +117,17 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("arl0", c.cusum.arl0)?;
     d.set_item("threshold", c.cusum.threshold)?;
     Ok(d)
+}
+
+/// "any" or "K-of-n" (at least K detectors of the rule).
+fn parse_rule(py: Python<'_>, text: &str) -> PyResult<DecisionRule> {
+    if text == "any" {
+        return Ok(DecisionRule::Any);
+    }
+    text.strip_suffix("-of-n")
+        .and_then(|k| k.parse::<usize>().ok())
+        .map(DecisionRule::AtLeast)
+        .ok_or_else(|| bad(py, "rule", format!("expected 'any' or 'K-of-n' (e.g. '2-of-n'), got '{text}'")))
 }
 
 fn parse_list<T: std::str::FromStr>(py: Python<'_>, key: &str, names: Vec<String>) -> PyResult<Vec<T>> {

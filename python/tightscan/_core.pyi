@@ -23,8 +23,16 @@ def simulate(config: dict[str, Any] | None = None) -> tuple[pa.Table, pa.Table]:
 def cusum_threshold(arl0: float, kappa: float, two_sided: bool = True) -> float: ...
 def cusum_arl(h: float, kappa: float, shift: float = 0.0, two_sided: bool = True) -> float: ...
 def result_columns() -> list[tuple[str, str, str, str]]: ...
+def monitor_series(
+    values: list[float],
+    training: int = 10,
+    alpha: float = 0.05,
+    kappa: float = 0.5,
+    gamma: float = 0.25,
+) -> dict[str, Any]: ...
 
 __all__ = [
+    "monitor_series",
     "DEBUG_BUILD",
     "__version__",
     "cusum_arl",

@@ -291,6 +291,11 @@ impl TwoSidedCusum {
         self.alarm
     }
 
+    /// Current value of the larger side, max(S+, S-).
+    pub fn statistic(&self) -> f64 {
+        self.s_pos.max(self.s_neg)
+    }
+
     /// Largest value either side has reached so far.
     pub fn max_statistic(&self) -> f64 {
         self.max_statistic

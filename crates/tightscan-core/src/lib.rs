@@ -13,6 +13,7 @@ pub mod kde;
 pub mod monitor;
 pub mod phases;
 pub mod schema;
+pub mod sequence;
 pub mod shewhart;
 pub mod signal;
 pub mod simulate;

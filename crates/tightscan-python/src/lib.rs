@@ -92,6 +92,35 @@ fn cusum_arl(h: f64, kappa: f64, shift: f64, two_sided: bool) -> f64 {
     cusum::cusum_arl(h, kappa, shift, two_sided)
 }
 
+/// Monitors one series of per-tightening values in production order (see
+/// `tightscan_core::sequence`): self-starting CUSUM and L1 sign monitoring after `training`
+/// reference values, each at `alpha` per series.
+#[pyfunction]
+#[pyo3(signature = (values, training=10, alpha=0.05, kappa=0.5, gamma=0.25))]
+fn monitor_series<'py>(
+    py: Python<'py>,
+    values: Vec<f64>,
+    training: usize,
+    alpha: f64,
+    kappa: f64,
+    gamma: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let cfg = tightscan_core::sequence::SequenceConfig { training, alpha, kappa, gamma };
+    let m = detached(py, move || Ok(tightscan_core::sequence::monitor_series(&values, &cfg)?))?;
+    let d = PyDict::new(py);
+    d.set_item("z", m.z)?;
+    d.set_item("cusum", m.cusum)?;
+    d.set_item("threshold", m.threshold)?;
+    d.set_item("cusum_alarm", m.cusum_alarm)?;
+    d.set_item("cusum_side", m.cusum_side.map(|s| s.as_str()))?;
+    d.set_item("cusum_change", m.cusum_change)?;
+    d.set_item("l1_alarm", m.l1_alarm)?;
+    d.set_item("reference_median", m.reference.0)?;
+    d.set_item("reference_sd", m.reference.1)?;
+    d.set_item("monitored", m.monitored)?;
+    Ok(d)
+}
+
 /// Column names, types, units and meanings of the result table.
 #[pyfunction]
 fn result_columns() -> Vec<(&'static str, String, &'static str, &'static str)> {
@@ -110,6 +139,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cusum_threshold, m)?)?;
     m.add_function(wrap_pyfunction!(cusum_arl, m)?)?;
     m.add_function(wrap_pyfunction!(result_columns, m)?)?;
+    m.add_function(wrap_pyfunction!(monitor_series, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("DEBUG_BUILD", cfg!(debug_assertions))?;
     Ok(())

@@ -1,50 +1,71 @@
-"""End-to-end size and power on the simulator (the exact size and delay checks against Monte
-Carlo and Siegmund are Rust tests in crates/tightscan-core/src/{cusum,detect}.rs)."""
+"""End-to-end size and power of the decision rule on the simulator. The detectors' own size
+and power tests against theory, Monte Carlo and R are Rust tests next to their code
+(crates/tightscan-core/src/{breakpoint,cusum,detect,monitor,critical_values,kde,shewhart,
+sequence}.rs)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
+import pytest
 
 import tightscan
 
 
-def _detected(results: pa.Table) -> tuple[np.ndarray, np.ndarray]:
-    ok = np.array([s == "ok" for s in results.column("status").to_pylist()])
-    det = np.array([bool(x) for x in results.column("change_detected").to_pylist()])
-    return ok, det
+def _flag(results: pa.Table, name: str) -> np.ndarray:
+    return np.array([bool(x) for x in results.column(name).to_pylist()])
 
 
-def test_false_alarms_on_clean_tightenings_stay_near_nominal() -> None:
-    # ARL0 = 3000 blocks over <= 30 monitored blocks: <= 1 % with known parameters, ~0.9 % with
-    # estimated ones (Rust test). Measured at seed 5: CST 0.4 %, CSDT 0.8 %, HDT 0.2 %. A scale
-    # or pause handling that is off by the amounts seen during development (3 % - 34 %) fails.
-    curves, _ = tightscan.simulate(3000, seed=5, fault_fraction=0.0)
-    results = tightscan.detect_batch(curves, passthrough=["strategy"])
-    ok, det = _detected(results)
-    assert ok.mean() > 0.9
+@pytest.fixture(scope="module")
+def clean() -> pa.Table:
+    """In-control tightenings of all strategies, a seed the calibration never saw."""
+    curves, _ = tightscan.simulate(6000, seed=31, fault_fraction=0.0)
+    return curves
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.01])
+def test_decision_rule_holds_its_false_alarm_rate(clean: pa.Table, alpha: float) -> None:
+    # Calibrated on 20,000 other in-control curves (detect.rs DECISION_CALIBRATION); measured on
+    # this seed 4.9 % at 0.05. Without the calibration the rule gave 4.0 % at 0.05 and 1.4 %
+    # at 0.01, both outside these bounds.
+    results = tightscan.detect_batch(clean, config={"alpha": alpha})
+    rate = _flag(results, "change_detected").mean()
+    sd = np.sqrt(alpha * (1 - alpha) / clean.num_rows)
+    assert abs(rate - alpha) < max(0.01 if alpha == 0.05 else 0.003, 3 * sd), rate
+
+
+def test_rule_keeps_every_strategy_near_alpha(clean: pa.Table) -> None:
+    results = tightscan.detect_batch(clean, passthrough=["strategy"])
     strategy = np.array(results.column("strategy").to_pylist())
+    detected = _flag(results, "change_detected")
     for s in ("CST", "CSDT", "HDT"):
-        m = ok & (strategy == s)
-        assert det[m].mean() < 0.02, (s, det[m].mean())
+        assert detected[strategy == s].mean() < 0.02, s
 
 
-def test_large_changes_after_the_training_window_are_found() -> None:
-    curves, truth = tightscan.simulate(1500, seed=6, fault_fraction=1.0, fault_kinds=["abrupt"], magnitude_range=(0.2, 0.4))
+def test_other_rules_are_conservative(clean: pa.Table) -> None:
+    """Not calibrated: the union bound (any) and a subset of it (2-of-n) stay at or below alpha."""
+    for config in ({"detectors": ["break"], "alpha": 0.05}, {"rule": "2-of-n", "alpha": 0.05}):
+        rate = _flag(tightscan.detect_batch(clean, config=config), "change_detected").mean()
+        assert rate <= 0.05 + 0.01, (config, rate)
+
+
+def test_power_onset_and_the_baseline() -> None:
+    """Faults of 3-45 % anywhere in the elastic zone, all kinds, all strategies."""
+    curves, truth = tightscan.simulate(3000, seed=32, fault_fraction=1.0, magnitude_range=(0.03, 0.45))
     results = tightscan.detect_batch(curves)
-    ok, det = _detected(results)
-    onset = truth.column("onset_angle").to_numpy(zero_copy_only=False)
-    start = results.column("elastic_start_angle").to_numpy(zero_copy_only=False)
-    end = results.column("elastic_end_angle").to_numpy(zero_copy_only=False)
-    width = results.column("cusum_block_angle").to_numpy(zero_copy_only=False)
-    blocks = results.column("cusum_blocks").to_numpy(zero_copy_only=False)
-    # Onsets inside the monitored part of the window, one block clear of the training window.
-    training_end = end - blocks * width
-    seen = ok & (onset > training_end + width) & (onset < end - width)
-    assert seen.sum() > 300
-    # Measured 0.87 at this seed. Known blind spot: blocks are fitted separately, so a torque
-    # jump that falls exactly between two blocks shows only through the (smaller) rate change
-    # after it; a between-block level statistic (issue 4) closes it.
-    assert det[seen].mean() > 0.85
-    error = np.abs(results.column("change_angle").to_numpy(zero_copy_only=False) - onset)[seen & det]
-    assert np.median(error) < 2.0
+    detected = _flag(results, "change_detected")
+    magnitude = np.abs(np.asarray(truth.column("magnitude").to_numpy(zero_copy_only=False), dtype=float))
+    # Measured at this seed: 0.997 below 15 %, 0.984 from 15 % (the misses are mostly rows too
+    # short for any detector); the goals of issue 4 are 0.88 and 0.99.
+    assert detected[magnitude < 0.15].mean() > 0.97
+    assert detected[magnitude >= 0.15].mean() > 0.96
+    kind = np.array(truth.column("fault_kind").to_pylist())
+    onset = np.asarray(truth.column("onset_angle").to_numpy(zero_copy_only=False), dtype=float)
+    angle = np.asarray(results.column("change_angle").to_numpy(zero_copy_only=False), dtype=float)
+    abrupt = detected & (kind == "abrupt")
+    # The break scan places an abrupt change to a sample: median 0.05 deg measured.
+    assert np.median(np.abs(angle - onset)[abrupt]) < 0.5
+    # The classical 3-sigma chart on the same residuals alarms on about half of the clean curves.
+    clean, _ = tightscan.simulate(1000, seed=33, fault_fraction=0.0)
+    shewhart = _flag(tightscan.detect_batch(clean), "shewhart_alarm").mean()
+    assert shewhart > 0.3

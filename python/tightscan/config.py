@@ -112,12 +112,16 @@ class DecisionConfig:
     ``alpha`` is the false-alarm probability per tightening of the decision. With ``rule="any"``
     each detector of ``detectors`` gets a weighted share of it (break 3, others 1), so the
     union bound keeps the rule at or below ``alpha``; ``"K-of-n"`` (e.g. ``"2-of-n"``) asks K
-    detectors to agree, a subset of those alarms. Detectors: ``break`` (sup-LR scan), ``l1``,
+    detectors to agree, a subset of those alarms. The default rule (any of break and cusum) is
+    ``calibrated``: its alpha is mapped through a curve measured on in-control simulation so
+    that its false-alarm rate equals ``alpha`` there (the union bound alone is conservative in
+    the bulk and, with quantised angles, not in the far tail). Detectors: ``break`` (sup-LR scan), ``l1``,
     ``cusum``, ``kde`` (needs ``ResidualTestConfig(kde=True)``)."""
 
     alpha: float = _DEFAULTS["alpha"]
     rule: str = _DEFAULTS["rule"]
     detectors: tuple[str, ...] = tuple(_DEFAULTS["detectors"])
+    calibrated: bool = _DEFAULTS["calibrated"]
 
 
 @dataclass(frozen=True)
@@ -177,6 +181,7 @@ class DetectConfig:
             "alpha": self.decision.alpha,
             "rule": self.decision.rule,
             "detectors": list(self.decision.detectors),
+            "calibrated": self.decision.calibrated,
             "residual_training_fraction": self.residual_tests.training_fraction,
             "kde": self.residual_tests.kde,
             "kde_alpha": self.residual_tests.kde_alpha,

@@ -20,10 +20,14 @@ from .config import (
     DetectConfig,
     ElasticZoneConfig,
     FrictionConfig,
+    L1Config,
+    DecisionConfig,
     ResidualTestConfig,
 )
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
+from .diagnose import diagnose
 from .rexroth import read_rexroth
+from .sequence import SequenceMonitor, monitor_sequence
 
 __version__: str = _core.__version__
 
@@ -37,9 +41,12 @@ if _core.DEBUG_BUILD:  # pragma: no cover - depends on how it was built
 
 __all__ = [
     "detect_batch",
+    "diagnose",
     "scan_parquet",
     "read_results",
     "read_rexroth",
+    "monitor_sequence",
+    "SequenceMonitor",
     "simulate",
     "cusum_threshold",
     "cusum_arl",
@@ -51,6 +58,8 @@ __all__ = [
     "FrictionConfig",
     "BreakConfig",
     "ResidualTestConfig",
+    "L1Config",
+    "DecisionConfig",
     "TightscanError",
     "SchemaError",
     "InvalidParameterError",

@@ -1,4 +1,4 @@
-"""Command line: `tightscan scan | simulate | demo | import rexroth`."""
+"""Command line: `tightscan scan | simulate | demo | import rexroth | diagnose`."""
 
 from __future__ import annotations
 
@@ -12,7 +12,14 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ._api import ScanSummary, scan_parquet, simulate
-from .config import BlockConfig, CusumConfig, DetectConfig, ElasticZoneConfig
+from .config import (
+    BlockConfig,
+    CusumConfig,
+    DecisionConfig,
+    DetectConfig,
+    ElasticZoneConfig,
+    ResidualTestConfig,
+)
 from .exceptions import TightscanError
 from .rexroth import write_rexroth
 
@@ -33,13 +40,40 @@ def _config(args: argparse.Namespace) -> DetectConfig:
         zone=ElasticZoneConfig(),
         blocks=BlockConfig(),
         cusum=CusumConfig(kappa=args.kappa, arl0=args.arl0, threshold=args.threshold),
+        residual_tests=ResidualTestConfig(kde=args.kde),
+        decision=DecisionConfig(
+            alpha=args.alpha,
+            rule=args.rule,
+            detectors=tuple(args.detectors) if args.detectors else DecisionConfig().detectors,
+        ),
     )
 
 
 def _add_detect_options(p: argparse.ArgumentParser) -> None:
     d = CusumConfig()
+    decision = DecisionConfig()
+    p.add_argument(
+        "--alpha",
+        type=float,
+        default=decision.alpha,
+        help="false-alarm probability per tightening of change_detected (default %(default)s)",
+    )
+    p.add_argument("--rule", default=decision.rule, help="'any' or 'K-of-n' (default %(default)s)")
+    p.add_argument(
+        "--detectors",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help=f"detectors of the rule: break, l1, cusum, kde (default {' '.join(decision.detectors)})",
+    )
+    p.add_argument("--kde", action="store_true", help="run the kernel-density test (about 1 ms per tightening)")
     p.add_argument("--kappa", type=float, default=d.kappa, help="CUSUM drift in sigma units (default %(default)s)")
-    p.add_argument("--arl0", type=float, default=d.arl0, help="in-control ARL in blocks that sets h (default %(default)s)")
+    p.add_argument(
+        "--arl0",
+        type=float,
+        default=d.arl0,
+        help="in-control ARL in blocks that sets h (default: from the CUSUM's share of --alpha)",
+    )
     p.add_argument("--threshold", type=float, default=None, help="explicit CUSUM threshold h (overrides --arl0)")
     p.add_argument("--passthrough", nargs="*", default=None, metavar="COLUMN", help="input columns to copy into the results")
     p.add_argument("--batch-size", type=int, default=8192, help="rows per streamed batch (default %(default)s)")
@@ -218,6 +252,56 @@ def cmd_import_rexroth(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from .diagnose import diagnose, load_table, write_report
+
+    table = load_table(args.input)
+    if args.limit is not None:
+        table = table.slice(0, args.limit)
+    group_by: Sequence[str] | str | None = "auto"
+    if args.group_by is not None:
+        group_by = args.group_by if args.group_by else None
+    result = diagnose(
+        table,
+        folds=args.folds,
+        alpha=args.alpha,
+        min_gain=args.min_gain,
+        max_effects=args.max_effects,
+        group_by=group_by,
+        seed=args.seed,
+    )
+    result.to_json(args.json)
+    figures = write_report(result, Path(args.report) / "figures") if args.report else []
+    print_diagnosis(result)
+    print(f"wrote {args.json}" + (f" and {len(figures)} figures to {Path(args.report) / 'figures'}" if figures else ""))
+    return 0
+
+
+def print_diagnosis(result: object) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from .diagnose import Diagnosis
+
+    assert isinstance(result, Diagnosis)
+    console = Console()
+    t = Table(title=f"tightscan diagnose: {result.details.get('tightenings', 0):,} tightenings", show_header=True)
+    for name in ("level", "effect", "significant", "RMSE after", "gain"):
+        t.add_column(name)
+    t.add_row("1", "declared model", "", f"{result.rmse_before:.4g} Nm", "")
+    for e in result.effects:
+        gain = e.evidence.get("rmse_gain")
+        t.add_row(
+            "1" if e.level == "within_tightening" else "2",
+            e.name,
+            "yes" if e.significant else "no",
+            f"{e.rmse_after:.4g} {e.rmse_unit}",
+            f"{100 * gain:.1f} %" if isinstance(gain, float) else "",
+        )
+    console.print(t)
+    console.print(f"unexplained structure left: {'yes' if result.unexplained_structure else 'no'}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tightscan",
@@ -282,6 +366,25 @@ def build_parser() -> argparse.ArgumentParser:
     rex.add_argument("--compression", choices=["zstd", "snappy"], default="zstd", help="Parquet compression (default %(default)s)")
     rex.add_argument("--no-progress", action="store_true", help="no progress bar")
     rex.set_defaults(func=cmd_import_rexroth)
+
+    diag = sub.add_parser(
+        "diagnose",
+        help="find what the declared tightening model misses, add it, report the error before and after",
+        description="Fit the declared model per phase across many tightenings, trace residual structure to "
+        "the effects the model lacks, add them, and report the out-of-sample error before and after "
+        "(docs/diagnose-s01.md).",
+    )
+    diag.add_argument("input", metavar="INPUT", help="Rexroth export directory (runs/*.json or *.json), Parquet file or directory")
+    diag.add_argument("--json", required=True, metavar="OUT.json", help="where the diagnosis goes (JSON)")
+    diag.add_argument("--report", default=None, metavar="DIR", help="also write figures to DIR/figures/diagnose-*.png")
+    diag.add_argument("--folds", type=int, default=5, help="K of the K-fold split across tightenings (default %(default)s)")
+    diag.add_argument("--alpha", type=float, default=0.01, help="family-wise level of each round (default %(default)s)")
+    diag.add_argument("--min-gain", type=float, default=0.01, help="smallest relative RMSE reduction of an effect (default %(default)s)")
+    diag.add_argument("--max-effects", type=int, default=6, help="level-1 effects at most (default %(default)s)")
+    diag.add_argument("--group-by", nargs="*", default=None, metavar="COLUMN", help="columns that group the folds (default: auto; none given: no grouping)")
+    diag.add_argument("--limit", type=int, default=None, metavar="N", help="only the first N tightenings")
+    diag.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+    diag.set_defaults(func=cmd_diagnose)
     return parser
 
 

@@ -47,7 +47,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use tightscan_core::cusum::{cusum_threshold, TwoSidedCusum};
+use tightscan_core::cusum::TwoSidedCusum;
 use tightscan_core::input::{ChannelRow, Samples, TighteningTable};
 use tightscan_core::signal::{block_count, block_stats, elastic_window, stop_ranges, Blocks, ElasticWindow};
 use tightscan_core::simulate::{simulate, EffectsConfig, SimulationConfig};
@@ -88,7 +88,8 @@ fn total_samples(batch: &RecordBatch) -> u64 {
 
 fn bench_cusum(c: &mut Criterion) {
     let kappa = 0.5;
-    let h = cusum_threshold(DetectConfig::default().cusum.arl0, kappa, true).expect("bench setup: threshold");
+    // The threshold detect_batch uses by default (from the CUSUM's share of the decision alpha).
+    let h = Detector::new(DetectConfig::default()).expect("bench setup: detector").threshold();
     let mut group = c.benchmark_group("cusum");
     for &n in &CUSUM_SIZES {
         let zs = normal_increments(n, CUSUM_SEED);

@@ -105,7 +105,7 @@ pub fn monitor_series(values: &[f64], cfg: &SequenceConfig) -> Result<SeriesMoni
     out.reference = (median, 1.482_602_218_505_602 * quantile_sorted(&deviations));
     // Running mean and sum of squares (Welford) over the values seen so far.
     let (mut count, mut mean, mut m2) = (0.0f64, 0.0f64, 0.0f64);
-    let mut push = |x: f64, count: &mut f64, mean: &mut f64, m2: &mut f64| {
+    let push = |x: f64, count: &mut f64, mean: &mut f64, m2: &mut f64| {
         *count += 1.0;
         let d = x - *mean;
         *mean += d / *count;

@@ -2202,8 +2202,13 @@ def _l2_description(pname: str, pdesc: str, cov: str, kind: str) -> str:
 
 
 def write_report(diagnosis: Diagnosis, directory: PathLike, prefix: str = "diagnose") -> list[Path]:
-    """Figures of a diagnosis: residual before, the evidence, residual after (PNG)."""
-    import matplotlib
+    """Figures of a diagnosis: residual before, the evidence, residual after (PNG).
+
+    Needs matplotlib (``pip install 'tightscan[report]'``); the diagnosis itself does not."""
+    try:
+        import matplotlib
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError("the --report figures need matplotlib: pip install 'tightscan[report]'") from e
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

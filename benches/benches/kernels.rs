@@ -16,7 +16,8 @@
 //! `stages` splits one tightening's analysis into the public building blocks `Detector::detect`
 //! runs, each over all 1,000 tightenings on the calling thread, so that their costs per sample
 //! add up against `stages/detect_1_thread` (the whole detector in a one-thread rayon pool):
-//! `validate` (the NaN/inf scan of all four channels, as `detect` does it), `elastic_window`,
+//! `validate` (the NaN/inf scan of all four channels, as `detect` does it), `find_phases` (the
+//! phases and the elastic window),
 //! `block_stats` and `stop_ranges` (on the windows found), and `torque_max` (one plain pass of
 //! max over the torque, the cost of each extra whole-curve pass).
 //!
@@ -49,7 +50,8 @@ use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use tightscan_core::cusum::TwoSidedCusum;
 use tightscan_core::input::{ChannelRow, Samples, TighteningTable};
-use tightscan_core::signal::{block_count, block_stats, elastic_window, stop_ranges, Blocks, ElasticWindow};
+use tightscan_core::phases::{find_phases, PhaseScratch};
+use tightscan_core::signal::{block_count, block_stats, stop_ranges, Blocks, ElasticWindow};
 use tightscan_core::simulate::{simulate, EffectsConfig, SimulationConfig};
 use tightscan_core::{DetectConfig, Detector};
 
@@ -184,7 +186,7 @@ fn bench_stages(c: &mut Criterion) {
         .iter()
         .enumerate()
         .filter_map(|(i, (a, t))| {
-            let w = elastic_window(a, t, &config.zone).ok()?;
+            let w = find_phases(a, t, &config.zone, &config.yield_zone, &mut PhaseScratch::default()).ok()?.window;
             let nb = block_count(w.end - w.start, &config.blocks);
             (nb >= config.blocks.min_training_blocks + 2).then_some((i, w, nb))
         })
@@ -197,8 +199,14 @@ fn bench_stages(c: &mut Criterion) {
     group.bench_function("validate", |b| {
         b.iter(|| rows.iter().map(|r| r.iter().map(|s| s.non_finite_count()).sum::<usize>()).sum::<usize>());
     });
-    group.bench_function("elastic_window", |b| {
-        b.iter(|| curves.iter().filter(|(a, t)| elastic_window(a, t, black_box(&config.zone)).is_ok()).count());
+    group.bench_function("find_phases", |b| {
+        let mut scratch = PhaseScratch::default();
+        b.iter(|| {
+            curves
+                .iter()
+                .filter(|(a, t)| find_phases(a, t, black_box(&config.zone), &config.yield_zone, &mut scratch).is_ok())
+                .count()
+        });
     });
     group.bench_function("torque_max", |b| {
         b.iter(|| {

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import glob
 import os
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Iterator, Sequence, Union
 
 import pyarrow as pa
@@ -17,6 +15,7 @@ import pyarrow.parquet as pq
 
 from . import _core
 from .config import ConfigLike, as_dict
+from ._paths import expand_paths
 from .exceptions import DataFileError, SchemaError
 
 if TYPE_CHECKING:
@@ -227,26 +226,8 @@ class ScanSummary:
 
 
 def _expand_sources(source: PathLike | Sequence[PathLike]) -> list[str]:
-    items = [source] if isinstance(source, (str, os.PathLike)) else list(source)
-    files: list[str] = []
-    for item in items:
-        text = os.fspath(item)
-        path = Path(text)
-        if path.is_dir():
-            found = sorted(str(p) for p in path.rglob("*.parquet"))
-            if not found:
-                raise DataFileError(f"no .parquet files in directory {text}", text)
-            files.extend(found)
-        elif path.is_file():
-            files.append(text)
-        elif glob.has_magic(text):
-            found = sorted(glob.glob(text, recursive=True))
-            if not found:
-                raise DataFileError(f"no files match {text}", text)
-            files.extend(found)
-        else:
-            raise DataFileError(f"no such file or directory: {text}", text)
-    return files
+    # Parquet datasets are often partitioned into sub-directories: search them too.
+    return expand_paths(source, "*.parquet", recursive=True)
 
 
 def _open(path: str) -> ds.Dataset:
@@ -349,7 +330,8 @@ def scan_parquet(
             if repeated:
                 raise SchemaError(
                     f"tightening {next(iter(repeated))!r} appears again after other tightenings in "
-                    f"{path}: stream the long layout grouped by tightening_id, or use detect_batch"
+                    f"{path}: stream the long layout grouped by tightening_id, or use detect_batch",
+                    "tightening_id",
                 )
             seen.update(ids)
         if result.schema != out_schema:

@@ -16,13 +16,17 @@ class TightscanError(Exception):
 class SchemaError(TightscanError, ValueError):
     """The table does not follow the data contract. ``column`` names the offending column."""
 
-    column: str | None = None
+    def __init__(self, message: str, column: str | None = None) -> None:
+        super().__init__(message)
+        self.column = column
 
 
 class InvalidParameterError(TightscanError, ValueError):
     """A parameter is out of its domain. ``parameter`` names it."""
 
-    parameter: str | None = None
+    def __init__(self, message: str, parameter: str | None = None) -> None:
+        super().__init__(message)
+        self.parameter = parameter
 
 
 class DataFileError(TightscanError, OSError):

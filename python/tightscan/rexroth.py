@@ -32,7 +32,6 @@ that a directory of thousands of exports is never stopped by one bad file.
 
 from __future__ import annotations
 
-import glob
 import json
 import os
 import re
@@ -49,6 +48,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from ._paths import expand_paths
 from .exceptions import DataFileError, InvalidParameterError, SchemaError
 
 __all__ = ["read_rexroth", "write_rexroth", "join_labels", "rexroth_schema", "RexrothImport", "STATUS_CODES"]
@@ -371,25 +371,7 @@ def _expand(paths: PathLike | Sequence[PathLike]) -> list[str]:
     items = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not items:
         raise DataFileError("no input files given", "")
-    files: list[str] = []
-    for item in items:
-        text = os.fspath(item)
-        path = Path(text)
-        if path.is_dir():
-            found = sorted(str(p) for p in path.glob("*.json") if p.is_file())
-            if not found:
-                raise DataFileError(f"no .json files in directory {text}", text)
-            files.extend(found)
-        elif path.is_file():
-            files.append(text)
-        elif glob.has_magic(text):
-            found = sorted(glob.glob(text, recursive=True))
-            if not found:
-                raise DataFileError(f"no files match {text}", text)
-            files.extend(found)
-        else:
-            raise DataFileError(f"no such file or directory: {text}", text)
-    return files
+    return expand_paths(items, "*.json", recursive=False)
 
 
 class _Progress:
@@ -466,12 +448,6 @@ def _read_labels(labels: PathLike | pa.Table) -> pa.Table:
         raise DataFileError(f"cannot read labels CSV {text}: {e}", text) from e
 
 
-def _schema_error(message: str, column: str) -> SchemaError:
-    error = SchemaError(message)
-    error.column = column
-    return error
-
-
 def join_labels(table: pa.Table, labels: PathLike | pa.Table, on: tuple[str, str] = ("cycle", "run_id")) -> pa.Table:
     """Left join of ``labels`` onto ``table``: every row kept, in order; label columns appended.
 
@@ -483,20 +459,20 @@ def join_labels(table: pa.Table, labels: PathLike | pa.Table, on: tuple[str, str
     left_key, right_key = on
     label_table = _read_labels(labels)
     if left_key not in table.column_names:
-        raise _schema_error(f"the imported table has no column {left_key!r} to join labels on", left_key)
+        raise SchemaError(f"the imported table has no column {left_key!r} to join labels on", left_key)
     if right_key not in label_table.column_names:
-        raise _schema_error(f"the labels have no key column {right_key!r}", right_key)
+        raise SchemaError(f"the labels have no key column {right_key!r}", right_key)
     key_type = table.schema.field(left_key).type
     try:
         right = pc.cast(label_table.column(right_key), key_type)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
-        raise _schema_error(f"label column {right_key!r} cannot be cast to {key_type} to match {left_key!r}: {e}", right_key) from e
+        raise SchemaError(f"label column {right_key!r} cannot be cast to {key_type} to match {left_key!r}: {e}", right_key) from e
     position: dict[Any, int] = {}
     for i, key in enumerate(right.to_pylist()):
         if key is None:
             continue
         if key in position:
-            raise _schema_error(f"the labels have more than one row with {right_key} = {key!r}", right_key)
+            raise SchemaError(f"the labels have more than one row with {right_key} = {key!r}", right_key)
         position[key] = i
     take = pa.array([position.get(k) for k in table.column(left_key).to_pylist()], pa.int64())
     out = table

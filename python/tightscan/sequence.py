@@ -51,15 +51,9 @@ class SequenceMonitor:
     groups: pa.Table
 
 
-def _schema_error(message: str, column: str) -> SchemaError:
-    error = SchemaError(message)
-    error.column = column
-    return error
-
-
 def _column(table: pa.Table, name: str) -> pa.ChunkedArray:
     if name not in table.column_names:
-        raise _schema_error(f"column {name!r} is missing (table has: {', '.join(table.column_names)})", name)
+        raise SchemaError(f"column {name!r} is missing (table has: {', '.join(table.column_names)})", name)
     return table.column(name)
 
 
@@ -94,12 +88,12 @@ def monitor_sequence(
     if features is None:
         features = [f for f in DEFAULT_FEATURES if f in table.column_names and table.column(f).null_count < len(table)]
         if not features:
-            raise _schema_error(f"none of the default features {DEFAULT_FEATURES} is in the table", "features")
+            raise SchemaError(f"none of the default features {DEFAULT_FEATURES} is in the table", "features")
     features = list(features)
     for name in features:
         column = _column(table, name)
         if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
-            raise _schema_error(f"feature {name!r} must be numeric, got {column.type}", name)
+            raise SchemaError(f"feature {name!r} must be numeric, got {column.type}", name)
 
     order = np.arange(len(table))
     if order_by is not None:

@@ -441,7 +441,7 @@ struct Scratch {
     index: Vec<usize>,
     prefix: Vec<(f64, f64, f64, f64, f64)>,
     line_residuals: Vec<f64>,
-    robust: Vec<f64>,
+    block_first: Vec<usize>,
     has_force: bool,
     regressor: Vec<f64>,
 }
@@ -813,7 +813,7 @@ impl Detector {
         let window_angles = (angle[window.start].to_f64(), angle[window.end - 1].to_f64());
         stop_ranges(angle, torque, window, &mut s.stops);
         let break_row = self.break_row(angle, torque, window, s);
-        let residual_row = self.residual_row(angle, row, s);
+        let residual_row = self.residual_row(angle, &phases.line, row, s);
         let l1_row = self.l1_row(angle, s);
         // From here on a failure still reports the phases and the friction estimate: they need
         // far fewer samples than the detectors (a short real curve keeps its torque rate).
@@ -929,16 +929,9 @@ impl Detector {
                 change_angle: angle[change_block.first].to_f64(),
             }
         });
+        // The same row as a partial one (status: the friction status, ok or unknown_thread),
+        // now with the CUSUM.
         RowResult {
-            status: friction_status,
-            n_samples: n,
-            window: Some(window_angles),
-            phases: Some(phase_row),
-            friction: friction_row,
-            breaks: break_row,
-            residual: residual_row,
-            l1: l1_row,
-            decision: None,
             cusum: Some(CusumRow {
                 alarm,
                 max_statistic: cusum.max_statistic(),
@@ -950,6 +943,7 @@ impl Detector {
                 blocks: monitor.len(),
                 block_angle: blocks.width,
             }),
+            ..partial(TighteningStatus::Ok)
         }
     }
 }
@@ -1049,12 +1043,12 @@ impl Detector {
             e.5 = e.5.min(k);
         }
         s.regressor.clear();
-        s.robust.clear(); // position (into s.x) of each usable block's first sample
+        s.block_first.clear(); // position (into s.x) of each usable block's first sample
         for e in &sums {
             let sxx = e.3 - e.1 * e.1 / e.0.max(1.0);
             if e.0 >= 3.0 && sxx > 1e-9 * width * width {
                 s.regressor.push((e.4 - e.1 * e.2 / e.0) / sxx);
-                s.robust.push(e.5 as f64);
+                s.block_first.push(e.5);
             }
         }
         let blocks = s.regressor.len();
@@ -1071,7 +1065,7 @@ impl Detector {
         let result = monitor_l1(&[], &s.regressor, &config).ok()?;
         // Report the last sample of the alarming block: when the evidence was complete.
         let at = result.alarm_index.map(|b| {
-            let next_first = s.robust.get(b + 1).map_or(n, |&p| p as usize);
+            let next_first = s.block_first.get(b + 1).copied().unwrap_or(n);
             s.index[next_first.saturating_sub(1).min(n - 1)]
         });
         Some(L1Row { alarm_index: at, alarm_angle: at.map(|i| angle[i].to_f64()), max_ratio: result.max_ratio })
@@ -1112,14 +1106,13 @@ impl Detector {
         Some(DecisionRow { detected, change, fired: fired.join(",") })
     }
 
-    /// Tests on the residuals of the robust elastic line over the samples the break scan used
-    /// (`s.x`, `s.y`, `s.index`): the k-sigma chart always, the kernel-density test when enabled.
-    /// The line is fitted to the whole window, so under no change the residuals are nearly
-    /// exchangeable, which the permutation test needs; a change leaves residuals whose level or
-    /// spread differs before and after it.
-    fn residual_row<A: Sample>(&self, angle: &[A], row: usize, s: &mut Scratch) -> Option<ResidualRow> {
+    /// Tests on the residuals of the robust elastic line (the phase finder's, in the same window
+    /// coordinates) over the samples the break scan used (`s.x`, `s.y`, `s.index`): the k-sigma
+    /// chart always, the kernel-density test when enabled. The line is fitted to the whole
+    /// window, so under no change the residuals are nearly exchangeable, which the permutation
+    /// test needs; a change leaves residuals whose level or spread differs before and after it.
+    fn residual_row<A: Sample>(&self, angle: &[A], line: &crate::phases::Line, row: usize, s: &mut Scratch) -> Option<ResidualRow> {
         let cfg = &self.config.residual_tests;
-        let line = crate::phases::robust_line(&s.x, &s.y, &mut s.robust)?;
         s.line_residuals.clear();
         s.line_residuals.extend(s.x.iter().zip(&s.y).map(|(x, y)| y - line.intercept - line.slope * x));
         let n = s.line_residuals.len();

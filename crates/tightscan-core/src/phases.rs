@@ -40,6 +40,9 @@ pub struct Phases {
     pub window: ElasticWindow,
     /// Robust torque rate over the window \[Nm/deg\].
     pub torque_rate: f64,
+    /// The robust line of that rate, in window coordinates: x = angle - angle at
+    /// `window.start`, y = torque - torque at `window.start`.
+    pub line: Line,
     /// Start of the post-yield zone, when the gradient falls before the peak.
     pub yield_angle: Option<f64>,
 }
@@ -346,6 +349,7 @@ pub fn find_phases<A: Sample, T: Sample>(
         snug_angle,
         window,
         torque_rate: line.slope,
+        line,
         yield_angle,
     })
 }

@@ -5,9 +5,8 @@
 //! term at constant joint stiffness (METHODS.md section 1). Production data has torque and angle
 //! only, so the torque rate is the friction signal there.
 //!
-//! The window is found simply (the physics layer refines it): walking back from the torque peak
-//! to the last sample below `start_fraction` of the rise, and forward to the first sample at
-//! `end_fraction` of it. The window is cut into blocks of equal angle; in each block the torque
+//! The window is found by the phase finder ([`crate::phases::find_phases`]), between two
+//! fractions of the rise above the prevailing torque. The window is cut into blocks of equal angle; in each block the torque
 //! rate is a least-squares slope. Disjoint blocks give independent slopes under white noise, and
 //! equal angle (rather than equal sample count) keeps each slope's variance from growing when
 //! the tool slows down near the target (HDT).
@@ -129,64 +128,6 @@ pub enum WindowError {
     TooShort(usize),
     /// Angle does not advance across the window.
     AngleStuck,
-}
-
-/// Finds the elastic window (see the module docs).
-pub fn elastic_window<A: Sample, T: Sample>(
-    angle: &[A],
-    torque: &[T],
-    cfg: &ElasticZoneConfig,
-) -> std::result::Result<ElasticWindow, WindowError> {
-    let n = torque.len();
-    // One pass: the peak, the lowest torque up to it (the base: prevailing torque and sensor
-    // offset), and the lowest overall (flat check). Plain comparisons rather than f64::min,
-    // whose NaN handling makes a serial dependency chain (inputs are checked finite already).
-    let (mut i_peak, mut peak) = (0, f64::NEG_INFINITY);
-    let (mut low, mut base) = (f64::INFINITY, f64::INFINITY);
-    for (i, t) in torque.iter().enumerate() {
-        let t = t.to_f64();
-        if t < low {
-            low = t;
-        }
-        if t > peak {
-            peak = t;
-            i_peak = i;
-            base = low;
-        }
-    }
-    if n == 0 || peak <= low {
-        return Err(WindowError::FlatTorque);
-    }
-    let rise = peak - base;
-    let lo = base + cfg.start_fraction * rise;
-    let hi = base + cfg.end_fraction * rise;
-    let mut start = i_peak;
-    while start > 0 && torque[start - 1].to_f64() >= lo {
-        start -= 1;
-    }
-    let mut end = start;
-    while end < i_peak && torque[end].to_f64() < hi {
-        end += 1;
-    }
-    if end <= start || angle[end - 1].to_f64() <= angle[start].to_f64() {
-        return if end - start < cfg.min_samples { Err(WindowError::TooShort(end - start)) } else { Err(WindowError::AngleStuck) };
-    }
-    let (a_lo, a_hi) = (angle[start].to_f64(), angle[end - 1].to_f64());
-    let margin = cfg.trim_fraction * (a_hi - a_lo);
-    while start < end && angle[start].to_f64() < a_lo + margin {
-        start += 1;
-    }
-    while end > start && angle[end - 1].to_f64() > a_hi - margin {
-        end -= 1;
-    }
-    let len = end - start;
-    if len < cfg.min_samples {
-        return Err(WindowError::TooShort(len));
-    }
-    if angle[end - 1].to_f64() <= angle[start].to_f64() {
-        return Err(WindowError::AngleStuck);
-    }
-    Ok(ElasticWindow { start, end, peak })
 }
 
 /// Least-squares sums of one block, x = angle relative to the block's left edge and
@@ -322,6 +263,7 @@ pub fn block_count(len: usize, cfg: &BlockConfig) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::phases::{find_phases, PhaseScratch, YieldConfig};
 
     #[test]
     fn window_of_a_clean_ramp() {
@@ -330,7 +272,7 @@ mod tests {
         let torque: Vec<f64> =
             angle.iter().map(|&a| if a < 100.0 { 0.1 } else { (0.1 + 0.2 * (a - 100.0)).min(40.0) }).collect();
         let zone = ElasticZoneConfig { start_fraction: 0.3, end_fraction: 0.9, trim_fraction: 0.05, ..ElasticZoneConfig::default() };
-        let w = elastic_window(&angle, &torque, &zone);
+        let w = find_phases(&angle, &torque, &zone, &YieldConfig::default(), &mut PhaseScratch::default()).map(|p| p.window);
         let w = w.unwrap_or(ElasticWindow { start: 0, end: 0, peak: 0.0 });
         // peak 39.9 at 299; base 0.1; 30 % level = 12.04 -> first sample >= it is 160; 90 %
         // level first reached at 280, so the window is 160..=279, trimmed by 5 % of 119 deg.
@@ -353,9 +295,10 @@ mod tests {
     fn flat_and_short_curves() {
         let angle: Vec<f32> = (0..50).map(|i| i as f32).collect();
         let flat = vec![1.0f32; 50];
-        assert_eq!(elastic_window(&angle, &flat, &ElasticZoneConfig::default()), Err(WindowError::FlatTorque));
+        let phases = |t: &[f32]| find_phases(&angle, t, &ElasticZoneConfig::default(), &YieldConfig::default(), &mut PhaseScratch::default()).map(|p| p.window);
+        assert_eq!(phases(&flat), Err(WindowError::FlatTorque));
         let step: Vec<f32> = (0..50).map(|i| if i < 45 { 0.0 } else { 1.0 }).collect();
-        assert!(matches!(elastic_window(&angle, &step, &ElasticZoneConfig::default()), Err(WindowError::TooShort(_))));
+        assert!(matches!(phases(&step), Err(WindowError::TooShort(_))));
     }
 }
 

@@ -102,7 +102,14 @@ class Params(NamedTuple):
 
 def params_from_defaults() -> Params:
     d = _core.default_config()
-    h = d["threshold"] if d["threshold"] is not None else tightscan.cusum_threshold(d["arl0"], d["kappa"], True)
+    if d["threshold"] is not None:
+        h = d["threshold"]
+    elif d["arl0"] is not None:
+        h = tightscan.cusum_threshold(d["arl0"], d["kappa"], True)
+    else:
+        # Derived from the CUSUM's share of the decision alpha: read it off the detector.
+        curves, _ = tightscan.simulate(20, seed=1)
+        h = float(pc.max(tightscan.detect_batch(curves).column("cusum_threshold")).as_py())
     return Params(
         d["zone_start_fraction"], d["zone_end_fraction"], d["zone_trim_fraction"], d["zone_min_samples"],
         d["max_blocks"], d["min_block_samples"], d["training_fraction"], d["min_training_blocks"],

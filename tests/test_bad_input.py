@@ -103,3 +103,25 @@ def test_bad_parameters_raise_naming_the_parameter() -> None:
 def test_not_a_table_is_a_type_error() -> None:
     with pytest.raises(TypeError):
         tightscan.detect_batch([1, 2, 3])
+
+
+def _short_rise(rise_samples: int) -> tuple[list[float], list[float]]:
+    """A rundown and a final rise of `rise_samples` samples, with a little deterministic noise."""
+    angle = [i * 0.5 for i in range(60 + rise_samples)]
+    torque = [
+        0.1 + (0.0 if i < 60 else 0.4 * (i - 60)) + 0.002 * math.sin(1.7 * i * i) for i in range(60 + rise_samples)
+    ]
+    return angle, torque
+
+
+def test_a_window_too_short_for_the_cusum_is_still_analysed_by_the_break_scan() -> None:
+    """The CUSUM needs 50 samples in the window, the break scan 20: with about 35 the row is
+    `ok`, decided by the scan, and the CUSUM's columns are null; with about 17 it cannot run,
+    the row is `too_short` and keeps its phases."""
+    out = tightscan.detect_batch(_table([_short_rise(45), _short_rise(22)])).to_pylist()
+    analysed, short = out
+    assert analysed["status"] == "ok"
+    assert analysed["change_detected"] is False and analysed["break_p_value"] is not None
+    assert analysed["cusum_max_statistic"] is None and analysed["cusum_alarm"] is None
+    assert short["status"].startswith("too_short")
+    assert short["change_detected"] is None and short["torque_rate"] is not None

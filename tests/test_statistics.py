@@ -25,8 +25,8 @@ def clean() -> pa.Table:
 
 @pytest.mark.parametrize("alpha", [0.05, 0.01])
 def test_decision_rule_holds_its_false_alarm_rate(clean: pa.Table, alpha: float) -> None:
-    # Calibrated on 20,000 other in-control curves (detect.rs DECISION_CALIBRATION); measured on
-    # this seed 4.9 % at 0.05. Without the calibration the rule gave 4.0 % at 0.05 and 1.4 %
+    # Calibrated on 100,000 other in-control curves (detect.rs DECISION_CALIBRATION); measured on
+    # this seed 5.0 % at 0.05 and 1.2 % at 0.01. Without the calibration the rule gave 4.0 % at 0.05 and 1.4 %
     # at 0.01, both outside these bounds.
     results = tightscan.detect_batch(clean, config={"alpha": alpha})
     rate = _flag(results, "change_detected").mean()
@@ -49,16 +49,40 @@ def test_other_rules_are_conservative(clean: pa.Table) -> None:
         assert rate <= 0.05 + 0.01, (config, rate)
 
 
+def test_a_late_large_rise_is_found_by_the_end_test() -> None:
+    """A friction rise of 25-45 % late in the elastic zone sends the torque past the target at
+    once: the change is in the last one to three samples. The end test (the break detector's
+    `break_tail_fraction` of alpha) finds those; the scan alone, which needs ten samples after a
+    break and never sees the trimmed end of the window, does not. Measured at this seed: 397
+    such curves, all found; 0.8 % without the end test."""
+    curves, truth = tightscan.simulate(
+        3000, seed=34, fault_fraction=1.0, fault_kinds=["abrupt"], magnitude_range=(0.25, 0.45),
+        onset_fraction_range=(0.75, 0.85),
+    )
+    magnitude = np.asarray(truth.column("magnitude").to_numpy(zero_copy_only=False), dtype=float)
+    n = np.asarray(truth.column("n_samples").to_numpy(zero_copy_only=False), dtype=float)
+    onset = np.array([np.nan if v is None else v for v in truth.column("onset_index").to_pylist()], dtype=float)
+    late = (magnitude > 0) & (n - onset <= 3)
+    assert late.sum() > 200
+    with_end_test = tightscan.detect_batch(curves)
+    found = _flag(with_end_test, "change_detected")[late]
+    assert found.mean() > 0.98
+    tail_p = np.array(with_end_test.column("break_tail_p_value").to_pylist(), dtype=float)[late]
+    assert np.median(tail_p) < 1e-6
+    without = _flag(tightscan.detect_batch(curves, config={"break_tail_fraction": 0.0}), "change_detected")[late]
+    assert without.mean() < 0.2
+
+
 def test_power_onset_and_the_baseline() -> None:
     """Faults of 3-45 % anywhere in the elastic zone, all kinds, all strategies."""
     curves, truth = tightscan.simulate(3000, seed=32, fault_fraction=1.0, magnitude_range=(0.03, 0.45))
     results = tightscan.detect_batch(curves)
     detected = _flag(results, "change_detected")
     magnitude = np.abs(np.asarray(truth.column("magnitude").to_numpy(zero_copy_only=False), dtype=float))
-    # Measured at this seed: 0.997 below 15 %, 0.984 from 15 % (the misses are mostly rows too
-    # short for any detector); the goals of issue 4 are 0.88 and 0.99.
+    # Measured at this seed: 0.998 below 15 %, 0.9995 from 15 % (0.984 before the end test);
+    # the goals of issue 4 are 0.88 and 0.99.
     assert detected[magnitude < 0.15].mean() > 0.97
-    assert detected[magnitude >= 0.15].mean() > 0.96
+    assert detected[magnitude >= 0.15].mean() > 0.99
     kind = np.array(truth.column("fault_kind").to_pylist())
     onset = np.asarray(truth.column("onset_angle").to_numpy(zero_copy_only=False), dtype=float)
     angle = np.asarray(results.column("change_angle").to_numpy(zero_copy_only=False), dtype=float)

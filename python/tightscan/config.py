@@ -88,10 +88,16 @@ class BreakConfig:
     ``alpha`` is its false-alarm probability per tightening, from a shipped null table; ``None``
     takes its share of the decision rule's alpha. A quantised angle encoder makes torque steps
     of one encoder increment (torque rate x resolution); a break is credited only when its jump
-    exceeds ``min_jump_steps`` of them (or its statistic is twice the critical value)."""
+    exceeds ``min_jump_steps`` of them (or its statistic is twice the critical value).
+
+    The scan needs ten samples or more after a break, so the last samples up to the peak get a
+    predictive (Chow) test of their own, with ``tail_fraction`` of ``alpha``: a large friction
+    rise late in the curve makes the tool reach its target within a sample or two. 0 turns it
+    off."""
 
     alpha: float | None = _DEFAULTS["break_alpha"]
     min_jump_steps: float = _DEFAULTS["break_min_jump_steps"]
+    tail_fraction: float = _DEFAULTS["break_tail_fraction"]
 
 
 @dataclass(frozen=True)
@@ -176,6 +182,7 @@ class DetectConfig:
             "threshold": self.cusum.threshold,
             "break_alpha": self.breaks.alpha,
             "break_min_jump_steps": self.breaks.min_jump_steps,
+            "break_tail_fraction": self.breaks.tail_fraction,
             "l1_gamma": self.l1.gamma,
             "l1_alpha": self.l1.alpha,
             "alpha": self.decision.alpha,

@@ -140,10 +140,86 @@ pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f
     Some(b)
 }
 
+/// Result of the end-of-window (predictive) test.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TailTest {
+    /// Bonferroni-adjusted p-value: `tails` x the smallest exact p-value, at most 1.
+    pub p_value: f64,
+    /// First sample of the tail at that smallest p-value.
+    pub start: usize,
+    /// Mean deviation of the tail from the line fitted before it (torque units).
+    pub deviation: f64,
+    /// Number of tail lengths tested.
+    pub tails: usize,
+}
+
+/// Predictive test of the last 1..=`max_tail` samples against the line fitted to the samples
+/// before them (Chow 1960, "Tests of equality between sets of coefficients in two linear
+/// regressions", Econometrica 28, the second test): with m = n - k samples in front,
+///
+/// ```text
+/// F_k = ((RSS_n - RSS_m) / k) / (RSS_m / (m - 2))  ~  F(k, m - 2)   (no change, Gaussian noise)
+/// ```
+///
+/// exactly for any design, so each p-value is exact; the smallest over k is Bonferroni-adjusted.
+///
+/// Why it exists: the sup-LR scan needs [`min_segment`] samples after a break, but a large
+/// friction rise late in the elastic zone makes the torque jump to the target and the tool stop
+/// within a sample or two. The change is then all in the last samples: a few huge deviations
+/// that the scan cannot isolate and this test sees at once. `x`, `y` as for [`sup_lr_scan`];
+/// at least 10 samples stay in front of the tail. `None` when no tail can be tested.
+pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, prefix: &mut Vec<(f64, f64, f64, f64, f64)>) -> Option<TailTest> {
+    use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+    let n = x.len();
+    const MIN_FRONT: usize = 10;
+    if y.len() != n || n <= MIN_FRONT {
+        return None;
+    }
+    let max_tail = max_tail.min(n - MIN_FRONT);
+    if max_tail == 0 {
+        return None;
+    }
+    let mut total = Sums::default();
+    prefix.clear();
+    for i in 0..n {
+        total.add(x[i], y[i]);
+        prefix.push((total.x, total.y, total.xx, total.xy, total.yy));
+    }
+    let (_, _, rss_n) = total.fit();
+    let mut best: Option<(f64, usize, f64)> = None; // (p, k, deviation)
+    for k in 1..=max_tail {
+        let m = n - k;
+        let p = prefix[m - 1];
+        let front = Sums { n: m as f64, x: p.0, y: p.1, xx: p.2, xy: p.3, yy: p.4 };
+        let (a, b, rss_m) = front.fit();
+        if !(rss_m > 0.0) {
+            continue;
+        }
+        let df2 = (m - 2) as f64;
+        let f = ((rss_n - rss_m).max(0.0) / k as f64) / (rss_m / df2);
+        // F(1, m-2) tails are those of Student's t squared; the general case needs the
+        // regularised incomplete beta function.
+        let p_k = match FisherSnedecor::new(k as f64, df2) {
+            Ok(dist) => dist.sf(f),
+            Err(_) => continue,
+        };
+        if best.is_none_or(|(bp, ..)| p_k < bp) {
+            let tail = total.minus(&front);
+            let deviation = (tail.y - a * tail.n - b * tail.x) / tail.n;
+            best = Some((p_k, k, deviation));
+        }
+    }
+    let (p, k, deviation) = best?;
+    Some(TailTest { p_value: (p * max_tail as f64).min(1.0), start: n - k, deviation, tails: max_tail })
+}
+
 /// Smallest segment for `n` samples: 5 % of them, at least 10 (a line and its noise level).
 pub fn min_segment(n: usize) -> usize {
-    ((n as f64 * 0.05).ceil() as usize).max(10)
+    ((n as f64 * 0.05).ceil() as usize).max(MIN_SEGMENT)
 }
+
+/// The shortest segment the scan fits a line to: a window needs twice this many samples.
+pub const MIN_SEGMENT: usize = 10;
 
 /// Sample sizes of the shipped table.
 pub const TABLE_N: [usize; 8] = [30, 60, 120, 250, 500, 1000, 2000, 4000];
@@ -338,6 +414,85 @@ mod tests {
         }
         assert!(found >= 495, "{found} of 500 found");
         assert!(exact >= 450, "{exact} of 500 within 2 samples");
+    }
+
+    /// The end test's statistic is the standardised prediction error of Chow's second test:
+    /// for one tail sample F_1 = e^2 / (s^2 (1 + 1/m + (x_n - xbar)^2 / Sxx)), computed here
+    /// from a direct fit; and t(28)'s 97.5 % point squared (2.0484^2) has p = 0.05.
+    #[test]
+    fn tail_test_matches_the_prediction_error_form() {
+        let n = 31;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+        let x: Vec<f64> = (0..n).map(|i| (i as f64).powf(1.3) * 0.1).collect(); // uneven, like HDT
+        let y: Vec<f64> = x.iter().map(|&v| 1.0 + 2.0 * v + 0.05 * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)).collect();
+        let t = tail_test(&x, &y, 1, &mut Vec::new()).unwrap();
+        let m = n - 1;
+        let mut front = Sums::default();
+        (0..m).for_each(|i| front.add(x[i], y[i]));
+        let (a, b, rss) = front.fit();
+        let s2 = rss / (m as f64 - 2.0);
+        let xbar = front.x / m as f64;
+        let sxx = front.xx - front.x * xbar;
+        let e = y[m] - a - b * x[m];
+        let f1 = e * e / (s2 * (1.0 + 1.0 / m as f64 + (x[m] - xbar).powi(2) / sxx));
+        use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+        let p = FisherSnedecor::new(1.0, (m - 2) as f64).unwrap().sf(f1);
+        assert!((t.p_value - p).abs() < 1e-10, "{} vs {p}", t.p_value);
+        assert!((t.deviation - e).abs() < 1e-12 && t.start == m && t.tails == 1);
+        assert!((FisherSnedecor::new(1.0, 28.0).unwrap().sf(2.0484f64.powi(2)) - 0.05).abs() < 1e-4);
+    }
+
+    /// Size: one tail is exact (p uniform) on an uneven design; ten tails with the Bonferroni
+    /// adjustment stay at or below alpha, and not absurdly far below (the tails overlap, so
+    /// the union bound is loose, but a mistake in the degrees of freedom would show).
+    #[test]
+    fn tail_test_size() {
+        let reps = 20_000;
+        let n = 60;
+        let x: Vec<f64> = (0..n).map(|i| (i as f64).sqrt()).collect();
+        let p: Vec<(f64, f64)> = (0..reps)
+            .into_par_iter()
+            .map_init(Vec::new, |prefix, r| {
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(4_000 + r as u64);
+                let y: Vec<f64> = (0..n).map(|_| <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)).collect();
+                (tail_test(&x, &y, 1, prefix).unwrap().p_value, tail_test(&x, &y, 10, prefix).unwrap().p_value)
+            })
+            .collect();
+        for alpha in [0.05, 0.01] {
+            let sd = (alpha * (1.0 - alpha) / reps as f64).sqrt();
+            let one = p.iter().filter(|v| v.0 <= alpha).count() as f64 / reps as f64;
+            assert!((one - alpha).abs() < 4.0 * sd, "one tail, alpha {alpha}: {one}");
+            let ten = p.iter().filter(|v| v.1 <= alpha).count() as f64 / reps as f64;
+            // Measured 1.7 % at 0.05: the ten tails overlap, so the union bound is loose.
+            assert!(ten <= alpha + 4.0 * sd && ten > 0.25 * alpha, "ten tails, alpha {alpha}: {ten}");
+        }
+    }
+
+    /// Power and place: a friction rise that sends the torque to the target at once leaves
+    /// one deviating sample (here +8 noise sd). The end test finds it at 0.001 and places it;
+    /// the scan, whose shortest segment is fifteen samples here, dilutes it among the good ones
+    /// and mostly misses it.
+    #[test]
+    fn tail_test_finds_a_jump_in_the_last_sample() {
+        let n = 300;
+        let x = evenly_spaced(n);
+        let (mut found, mut placed, mut scan_found) = (0, 0, 0);
+        for r in 0..500 {
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(70_000 + r);
+            let y: Vec<f64> = x
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| 3.0 * v + if i == n - 1 { 8.0 } else { 0.0 } + <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
+                .collect();
+            let t = tail_test(&x, &y, min_segment(n) - 1, &mut Vec::new()).unwrap();
+            found += usize::from(t.p_value <= 0.001);
+            placed += usize::from(t.start == n - 1);
+            let scan = sup_lr_scan(&x, &y, min_segment(n), &mut Vec::new()).unwrap();
+            scan_found += usize::from(scan.statistic > sup_lr_critical_value(n, 0.001).unwrap());
+        }
+        assert!(found >= 495, "{found} of 500");
+        assert!(placed >= 450, "{placed} of 500 placed at the jump"); // 470 measured; else one early
+        assert!(scan_found < 125, "the scan alone found {scan_found} of 500"); // 82 measured
     }
 
     #[test]

@@ -1180,6 +1180,18 @@ impl Detector {
     /// test needs; a change leaves residuals whose level or spread differs before and after it.
     fn residual_row<A: Sample>(&self, angle: &[A], line: &crate::phases::Line, row: usize, s: &mut Scratch) -> Option<ResidualRow> {
         let cfg = &self.config.residual_tests;
+        // The phase finder's line is fitted to every window sample. Where the window holds a
+        // stop (a CSDT pause: relaxation at standstill, then the wind-up), those samples pull it
+        // off the elastic line, and the residuals of the samples tested here (the stop left out)
+        // would carry that bias as structure: the kernel-density test alarmed on half of the
+        // clean CSDT curves. Refit on the samples tested then.
+        let refit;
+        let line = if s.stops.is_empty() {
+            line
+        } else {
+            refit = crate::phases::robust_line(&s.x, &s.y, &mut s.line_residuals)?;
+            &refit
+        };
         s.line_residuals.clear();
         s.line_residuals.extend(s.x.iter().zip(&s.y).map(|(x, y)| y - line.intercept - line.slope * x));
         let n = s.line_residuals.len();

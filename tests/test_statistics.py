@@ -73,6 +73,39 @@ def test_a_late_large_rise_is_found_by_the_end_test() -> None:
     assert without.mean() < 0.2
 
 
+def test_response_table_rule(clean: pa.Table) -> None:
+    """A table of detector responses: rows match on the detectors they name; the table's
+    alarms are exactly the rows' patterns applied to `detectors_fired`, and stay within alpha."""
+    config = {
+        "alpha": 0.05,
+        "detectors": ["break", "cusum", "l1"],
+        "rule": [{"break": True, "l1": False}, {"cusum": True, "l1": True}],
+    }
+    curves, _ = tightscan.simulate(2000, seed=36, fault_fraction=0.5)
+    for table in (clean, curves):
+        out = tightscan.detect_batch(table, config=config)
+        fired = [set(f.split(",")) if f else set() for f in out.column("detectors_fired").to_pylist()]
+        expected = np.array([("break" in f and "l1" not in f) or ("cusum" in f and "l1" in f) for f in fired])
+        assert (_flag(out, "change_detected") == expected).all()
+    rate = _flag(tightscan.detect_batch(clean, config=config), "change_detected").mean()
+    assert rate <= 0.05 + 3 * np.sqrt(0.05 * 0.95 / clean.num_rows), rate
+    # The dataclass form gives the same configuration.
+    dc = tightscan.DetectConfig(
+        decision=tightscan.DecisionConfig(alpha=0.05, detectors=("break", "cusum", "l1"), rule=tuple(config["rule"]))  # type: ignore[arg-type]
+    )
+    assert dc.to_dict()["rule"] == config["rule"]
+
+
+@pytest.mark.parametrize(
+    "rule",
+    [[], [{"l1": False}], [{"kde": True}], [{"brake": True}], [{"break": "yes"}], "3-of-n", "most"],
+)
+def test_bad_rules_are_named(rule: object) -> None:
+    with pytest.raises(tightscan.InvalidParameterError) as err:
+        tightscan.detect_batch(tightscan.simulate(3, seed=1)[0], config={"rule": rule})
+    assert err.value.parameter == "rule"
+
+
 def test_power_onset_and_the_baseline() -> None:
     """Faults of 3-45 % anywhere in the elastic zone, all kinds, all strategies."""
     curves, truth = tightscan.simulate(3000, seed=32, fault_fraction=1.0, magnitude_range=(0.03, 0.45))

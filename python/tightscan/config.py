@@ -122,10 +122,16 @@ class DecisionConfig:
     ``calibrated``: its alpha is mapped through a curve measured on in-control simulation so
     that its false-alarm rate equals ``alpha`` there (the union bound alone is conservative in
     the bulk and, with quantised angles, not in the far tail). Detectors: ``break`` (sup-LR scan), ``l1``,
-    ``cusum``, ``kde`` (needs ``ResidualTestConfig(kde=True)``)."""
+    ``cusum``, ``kde`` (needs ``ResidualTestConfig(kde=True)``).
+
+    ``rule`` may also be a table of detector responses, one mapping per row, e.g.
+    ``({"break": True}, {"cusum": True, "l1": True})``: a change when any row matches, a row
+    matching when the detectors it names fire (``True``) or stay silent (``False``); detectors
+    it does not name do not matter. Every row must require one detector to fire, so the table
+    stays within the union bound (not calibrated)."""
 
     alpha: float = _DEFAULTS["alpha"]
-    rule: str = _DEFAULTS["rule"]
+    rule: str | tuple[Mapping[str, bool], ...] = _DEFAULTS["rule"]
     detectors: tuple[str, ...] = tuple(_DEFAULTS["detectors"])
     calibrated: bool = _DEFAULTS["calibrated"]
 
@@ -186,7 +192,7 @@ class DetectConfig:
             "l1_gamma": self.l1.gamma,
             "l1_alpha": self.l1.alpha,
             "alpha": self.decision.alpha,
-            "rule": self.decision.rule,
+            "rule": self.decision.rule if isinstance(self.decision.rule, str) else [dict(row) for row in self.decision.rule],
             "detectors": list(self.decision.detectors),
             "calibrated": self.decision.calibrated,
             "residual_training_fraction": self.residual_tests.training_fraction,

@@ -169,7 +169,7 @@ impl DetectorKind {
 }
 
 /// How the detectors' alarms combine into `change_detected`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum DecisionRule {
     /// Any detector of the rule fires. With each detector at its share of alpha, the union
     /// bound holds the rule's false-alarm rate at alpha or below (Bonferroni).
@@ -177,6 +177,12 @@ pub enum DecisionRule {
     /// At least k detectors fire: a subset of `Any`'s alarms, so still at most alpha
     /// (conservative; fewer false alarms, less power).
     AtLeast(usize),
+    /// A table of detector responses, one row per pattern: each row names detectors that must
+    /// fire (`true`) or stay silent (`false`); detectors it does not name do not matter. A change
+    /// is detected when any row matches. Every row must require a detector to fire, so the
+    /// table's alarms are a subset of `Any`'s and the rate stays at most alpha. A detector that
+    /// could not run counts as silent.
+    Table(Vec<Vec<(DetectorKind, bool)>>),
 }
 
 /// The decision rule and its false-alarm budget.
@@ -519,13 +525,41 @@ impl Detector {
         if d.detectors.contains(&DetectorKind::Kde) && !r.kde {
             return Err(TightscanError::parameter("detectors", "'kde' in the rule needs kde=True"));
         }
-        if let DecisionRule::AtLeast(k) = d.rule {
-            if k == 0 || k > d.detectors.len() {
+        match &d.rule {
+            DecisionRule::AtLeast(k) if *k == 0 || *k > d.detectors.len() => {
                 return Err(TightscanError::parameter(
                     "rule",
                     format!("at least {k} of {} detectors cannot be asked", d.detectors.len()),
                 ));
             }
+            DecisionRule::Table(rows) => {
+                if rows.is_empty() {
+                    return Err(TightscanError::parameter("rule", "the response table has no rows"));
+                }
+                for (i, row) in rows.iter().enumerate() {
+                    if !row.iter().any(|&(_, fires)| fires) {
+                        return Err(TightscanError::parameter(
+                            "rule",
+                            format!("row {i} of the response table requires no detector to fire: it would alarm on clean curves"),
+                        ));
+                    }
+                    for (j, &(kind, _)) in row.iter().enumerate() {
+                        if !d.detectors.contains(&kind) {
+                            return Err(TightscanError::parameter(
+                                "rule",
+                                format!("row {i} of the response table names '{}', which is not in detectors", kind.as_str()),
+                            ));
+                        }
+                        if row[..j].iter().any(|&(k, _)| k == kind) {
+                            return Err(TightscanError::parameter(
+                                "rule",
+                                format!("row {i} of the response table names '{}' twice", kind.as_str()),
+                            ));
+                        }
+                    }
+                }
+            }
+            _ => {}
         }
         let kde_alpha = r.kde_alpha.unwrap_or_else(|| d.share(DetectorKind::Kde));
         if !(kde_alpha > 0.0 && kde_alpha < 1.0) {
@@ -1160,13 +1194,22 @@ impl Detector {
         if in_rule.iter().all(|&k| state(k).is_none()) {
             return None;
         }
-        let count = in_rule.iter().filter(|&&k| state(k).is_some_and(|s| s.0)).count();
-        let detected = match d.rule {
-            DecisionRule::Any => count >= 1,
-            DecisionRule::AtLeast(k) => count >= k,
+        let fires = |k: DetectorKind| state(k).is_some_and(|s| s.0);
+        let count = in_rule.iter().filter(|&&k| fires(k)).count();
+        // The detectors whose alarms count for this decision: all of the rule's, or those a
+        // matching row of the table requires.
+        let (detected, locating): (bool, Vec<DetectorKind>) = match &d.rule {
+            DecisionRule::Any => (count >= 1, in_rule.clone()),
+            DecisionRule::AtLeast(k) => (count >= *k, in_rule.clone()),
+            DecisionRule::Table(rows) => {
+                match rows.iter().find(|row| row.iter().all(|&(k, want)| fires(k) == want)) {
+                    Some(row) => (true, order.iter().copied().filter(|k| row.contains(&(*k, true))).collect()),
+                    None => (false, Vec::new()),
+                }
+            }
         };
         let change = if detected {
-            in_rule.iter().filter_map(|&k| state(k).filter(|s| s.0).and_then(|s| s.1)).next()
+            locating.iter().filter_map(|&k| state(k).filter(|s| s.0).and_then(|s| s.1)).next()
         } else {
             None
         };

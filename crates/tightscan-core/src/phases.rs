@@ -125,12 +125,17 @@ const HUBER_K: f64 = 1.345;
 const MAD_TO_SD: f64 = 1.482_602_218_505_602;
 
 /// Robust straight line by Huber IRLS. `scratch` is reused; returns `None` when x has no
-/// spread. Four reweighting steps from the least-squares start: the estimate moves by less than
-/// 1e-3 of its standard error after that on the curves tested, and each step costs one pass.
+/// spread. Four reweighting steps from the least-squares start, each re-estimating the MAD
+/// scale. Not always converged: against 200 steps, on 400 simulated windows the slope's median
+/// relative difference is 3e-7 but its 95th percentile 0.8 % (windows holding a CSDT pause or a
+/// fault converge slowly). Re-estimating the scale in the first two steps only was tried for
+/// speed and dropped: it doubled that percentile.
 pub fn robust_line(x: &[f64], y: &[f64], scratch: &mut Vec<f64>) -> Option<Line> {
     let n = x.len();
     let (mut a, mut b) = weighted_line(x, y, None)?;
-    let mut weights = vec![1.0; n];
+    // Sums are taken about the unweighted means, so the one-pass weighted sums below do not
+    // cancel (the window's x and y are far from zero at its end).
+    let (mx, my) = (x.iter().sum::<f64>() / n as f64, y.iter().sum::<f64>() / n as f64);
     let mut scale = 0.0;
     for _ in 0..4 {
         scratch.clear();
@@ -140,18 +145,25 @@ pub fn robust_line(x: &[f64], y: &[f64], scratch: &mut Vec<f64>) -> Option<Line>
             // Over half the residuals are exactly zero: the least-squares line is exact there.
             break;
         }
+        // Huber weights and the weighted least-squares sums in one pass.
         let cut = HUBER_K * scale;
+        let (mut sw, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for i in 0..n {
             let r = (y[i] - a - b * x[i]).abs();
-            weights[i] = if r <= cut { 1.0 } else { cut / r };
+            let w = if r <= cut { 1.0 } else { cut / r };
+            let (dx, dy) = (x[i] - mx, y[i] - my);
+            sw += w;
+            sx += w * dx;
+            sy += w * dy;
+            sxx += w * dx * dx;
+            sxy += w * dx * dy;
         }
-        match weighted_line(x, y, Some(&weights)) {
-            Some((na, nb)) => {
-                a = na;
-                b = nb;
-            }
-            None => break,
+        let vxx = sxx - sx * sx / sw;
+        if !(sw > 0.0 && vxx > 0.0 && vxx.is_finite()) {
+            break;
         }
+        b = (sxy - sx * sy / sw) / vxx;
+        a = my + sy / sw - b * (mx + sx / sw);
     }
     Some(Line { intercept: a, slope: b, scale })
 }
@@ -171,18 +183,31 @@ fn hinge_knee<A: Sample, T: Sample>(angle: &[A], torque: &[T], end: usize) -> Op
     let a_ref = angle[end - 1].to_f64();
     let t_ref = torque[end - 1].to_f64();
     let n = end as f64;
-    let (mut gx, mut gxx, mut gy, mut gxy, mut gyy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut gx, mut gxx, mut gy, mut gxy) = (0.0, 0.0, 0.0, 0.0);
     for i in 0..end {
         let (x, y) = (angle[i].to_f64() - a_ref, torque[i].to_f64() - t_ref);
         gx += x;
         gxx += x * x;
         gy += y;
         gxy += x * y;
-        gyy += y * y;
     }
+    // The broken line is the straight line plus d u, u = (x - x_j)+. By Frisch-Waugh-Lovell the
+    // best d and the drop in RSS it buys come from u and y with the line [1, x] projected out:
+    // with r the residuals of the straight line and P u = u - [1 x] (X'X)^-1 X'u,
+    //   d = u'r / u'Pu,   RSS_j = RSS_line - (u'r)^2 / u'Pu,
+    // where u'r and u'Pu follow from the suffix sums in O(1): about a fifth of the work of
+    // solving the 3 x 3 normal equations for every candidate.
+    let det = n * gxx - gx * gx;
+    if !(det > 0.0) {
+        return None;
+    }
+    let g0 = (n * gxy - gx * gy) / det;
+    let c0 = (gy - g0 * gx) / n;
+    // (X'X)^-1 = [[gxx, -gx], [-gx, n]] / det.
+    let (i11, i12, i22) = (gxx / det, -gx / det, n / det);
     // Walk the knee from the end backwards, accumulating suffix sums of samples after it.
     let (mut cnt, mut s1, mut s2, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    let mut best = (f64::INFINITY, None);
+    let mut best = (f64::NEG_INFINITY, None);
     for j in (3..end - 1).rev() {
         let (xj1, yj1) = (angle[j + 1].to_f64() - a_ref, torque[j + 1].to_f64() - t_ref);
         cnt += 1.0;
@@ -199,31 +224,15 @@ fn hinge_knee<A: Sample, T: Sample>(angle: &[A], torque: &[T], end: usize) -> Op
         let suu = s2 - 2.0 * xj * s1 + xj * xj * cnt;
         let sxu = s2 - xj * s1;
         let suy = sxy - xj * sy;
-        // Normal equations of y = c + g1 x + d u, solved by Cramer's rule.
-        let m = [[n, gx, su], [gx, gxx, sxu], [su, sxu, suu]];
-        let r = [gy, gxy, suy];
-        let det3 = |m: &[[f64; 3]; 3]| {
-            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-        };
-        let det = det3(&m);
-        if !(det.abs() > 1e-12 * n * gxx.abs().max(f64::MIN_POSITIVE) * suu.max(f64::MIN_POSITIVE)) {
+        let ur = suy - c0 * su - g0 * sxu;
+        let upu = suu - (i11 * su * su + 2.0 * i12 * su * sxu + i22 * sxu * sxu);
+        if !(upu > 1e-12 * suu) || ur <= 0.0 {
+            // u (nearly) on the line, or a knee that flattens the curve (d <= 0).
             continue;
         }
-        let solve = |col: usize| {
-            let mut mc = m;
-            for (row, v) in mc.iter_mut().zip(r) {
-                row[col] = v;
-            }
-            det3(&mc) / det
-        };
-        let (c, g1, d) = (solve(0), solve(1), solve(2));
-        if d <= 0.0 {
-            continue;
-        }
-        let rss = gyy - c * gy - g1 * gxy - d * suy;
-        if rss < best.0 {
-            best = (rss, Some(j));
+        let gain = ur * ur / upu;
+        if gain > best.0 {
+            best = (gain, Some(j));
         }
     }
     best.1

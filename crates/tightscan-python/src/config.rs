@@ -49,7 +49,7 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "l1_gamma" => c.l1.gamma = get(py, &key, &v)?,
             "alpha" => c.decision.alpha = get(py, &key, &v)?,
             "calibrated" => c.decision.calibrated = get(py, &key, &v)?,
-            "rule" => c.decision.rule = parse_rule(py, &get::<String>(py, &key, &v)?)?,
+            "rule" => c.decision.rule = parse_rule(py, &v)?,
             "detectors" => {
                 let names: Vec<String> = get(py, &key, &v)?;
                 c.decision.detectors = names
@@ -99,13 +99,21 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("l1_gamma", c.l1.gamma)?;
     d.set_item("alpha", c.decision.alpha)?;
     d.set_item("calibrated", c.decision.calibrated)?;
-    d.set_item(
-        "rule",
-        match c.decision.rule {
-            DecisionRule::Any => "any".to_string(),
-            DecisionRule::AtLeast(k) => format!("{k}-of-n"),
-        },
-    )?;
+    match &c.decision.rule {
+        DecisionRule::Any => d.set_item("rule", "any")?,
+        DecisionRule::AtLeast(k) => d.set_item("rule", format!("{k}-of-n"))?,
+        DecisionRule::Table(rows) => {
+            let table = rows
+                .iter()
+                .map(|row| {
+                    let r = PyDict::new(py);
+                    row.iter().try_for_each(|&(kind, fires)| r.set_item(kind.as_str(), fires))?;
+                    Ok(r)
+                })
+                .collect::<PyResult<Vec<_>>>()?;
+            d.set_item("rule", table)?
+        }
+    }
     d.set_item("detectors", c.decision.detectors.iter().map(|k| k.as_str()).collect::<Vec<_>>())?;
     d.set_item("residual_training_fraction", c.residual_tests.training_fraction)?;
     d.set_item("kde", c.residual_tests.kde)?;
@@ -123,15 +131,35 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     Ok(d)
 }
 
-/// "any" or "K-of-n" (at least K detectors of the rule).
-fn parse_rule(py: Python<'_>, text: &str) -> PyResult<DecisionRule> {
-    if text == "any" {
-        return Ok(DecisionRule::Any);
+/// "any", "K-of-n" (at least K detectors of the rule), or a response table: a list of dicts,
+/// one per row, detector name -> must fire (True) or stay silent (False).
+fn parse_rule(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<DecisionRule> {
+    if let Ok(text) = value.extract::<String>() {
+        if text == "any" {
+            return Ok(DecisionRule::Any);
+        }
+        return text
+            .strip_suffix("-of-n")
+            .and_then(|k| k.parse::<usize>().ok())
+            .map(DecisionRule::AtLeast)
+            .ok_or_else(|| bad(py, "rule", format!("expected 'any', 'K-of-n' (e.g. '2-of-n') or a list of dicts, got '{text}'")));
     }
-    text.strip_suffix("-of-n")
-        .and_then(|k| k.parse::<usize>().ok())
-        .map(DecisionRule::AtLeast)
-        .ok_or_else(|| bad(py, "rule", format!("expected 'any' or 'K-of-n' (e.g. '2-of-n'), got '{text}'")))
+    let rows: Vec<Bound<'_, PyDict>> = value
+        .extract()
+        .map_err(|_| bad(py, "rule", "expected 'any', 'K-of-n' or a response table (a list of dicts detector -> bool)"))?;
+    rows.iter()
+        .map(|row| {
+            row.iter()
+                .map(|(name, fires)| {
+                    let name: String = get(py, "rule", &name)?;
+                    let kind = DetectorKind::parse(&name)
+                        .ok_or_else(|| bad(py, "rule", format!("unknown detector '{name}' in the response table (break, l1, cusum, kde)")))?;
+                    Ok((kind, get::<bool>(py, "rule", &fires)?))
+                })
+                .collect::<PyResult<Vec<_>>>()
+        })
+        .collect::<PyResult<Vec<_>>>()
+        .map(DecisionRule::Table)
 }
 
 fn parse_list<T: std::str::FromStr>(py: Python<'_>, key: &str, names: Vec<String>) -> PyResult<Vec<T>> {

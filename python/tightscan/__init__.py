@@ -27,6 +27,7 @@ from .config import (
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
 from .diagnose import diagnose
 from .rexroth import read_rexroth
+from .monitor import RegressionMonitor, monitor_regression
 from .sequence import SequenceMonitor, monitor_sequence
 
 __version__: str = _core.__version__
@@ -46,6 +47,8 @@ __all__ = [
     "read_results",
     "read_rexroth",
     "monitor_sequence",
+    "monitor_regression",
+    "RegressionMonitor",
     "SequenceMonitor",
     "simulate",
     "cusum_threshold",

@@ -31,7 +31,19 @@ def monitor_series(
     gamma: float = 0.25,
 ) -> dict[str, Any]: ...
 
+def monitor_regression(
+    response: list[float],
+    regressors: list[list[float]] = ...,
+    training: int = 20,
+    gamma: float = 0.25,
+    alpha: float = 0.05,
+    method: str = "l1",
+    keep_path: bool = True,
+    long_run_variance: bool = False,
+) -> dict[str, Any]: ...
+
 __all__ = [
+    "monitor_regression",
     "monitor_series",
     "DEBUG_BUILD",
     "__version__",

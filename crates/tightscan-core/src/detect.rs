@@ -336,6 +336,10 @@ struct L1Row {
     alarm_index: Option<usize>,
     alarm_angle: Option<f64>,
     max_ratio: f64,
+    statistic_at_alarm: Option<f64>,
+    boundary_at_alarm: Option<f64>,
+    gamma: f64,
+    alpha: f64,
 }
 
 #[derive(Clone, Debug)]
@@ -1169,7 +1173,15 @@ impl Detector {
             let next_first = s.block_first.get(b + 1).copied().unwrap_or(n);
             s.index[next_first.saturating_sub(1).min(n - 1)]
         });
-        Some(L1Row { alarm_index: at, alarm_angle: at.map(|i| angle[i].to_f64()), max_ratio: result.max_ratio })
+        Some(L1Row {
+            alarm_index: at,
+            alarm_angle: at.map(|i| angle[i].to_f64()),
+            max_ratio: result.max_ratio,
+            statistic_at_alarm: result.statistic_at_alarm,
+            boundary_at_alarm: result.boundary_at_alarm,
+            gamma: result.gamma,
+            alpha: result.alpha,
+        })
     }
 
     /// The decision rule over the detectors that could run. `None` when none of the rule's
@@ -1384,6 +1396,10 @@ fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         i(|r| r.l1.and_then(|l| l.alarm_index).map(|v| v as i64)),
         f(|r| r.l1.and_then(|l| l.alarm_angle)),
         f(|r| r.l1.map(|l| l.max_ratio)),
+        f(|r| r.l1.and_then(|l| l.statistic_at_alarm)),
+        f(|r| r.l1.and_then(|l| l.boundary_at_alarm)),
+        f(|r| r.l1.map(|l| l.gamma)),
+        f(|r| r.l1.map(|l| l.alpha)),
         b(|r| r.residual.and_then(|k| k.kde).map(|k| k.alarm)),
         f(|r| r.residual.and_then(|k| k.kde).map(|k| k.statistic)),
         f(|r| r.residual.and_then(|k| k.kde).map(|k| k.p_value)),

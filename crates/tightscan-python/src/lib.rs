@@ -121,6 +121,66 @@ fn monitor_series<'py>(
     Ok(d)
 }
 
+/// Sequential monitoring of a linear regression (`tightscan_core::monitor`): L1 sign residuals
+/// (`method="l1"`) or OLS-CUSUM (`method="ols_cusum"`, Horvath et al. 2004), trained on the first
+/// `training` observations, with the boundary c (1 + k/m) (k/(m+k))^gamma. `regressors` are
+/// columns besides the intercept. With `keep_path` the detector and boundary of every monitored
+/// k are returned, for plots.
+#[pyfunction]
+#[pyo3(signature = (response, regressors=Vec::new(), training=20, gamma=0.25, alpha=0.05, method="l1", keep_path=true, long_run_variance=false))]
+#[allow(clippy::too_many_arguments)]
+fn monitor_regression<'py>(
+    py: Python<'py>,
+    response: Vec<f64>,
+    regressors: Vec<Vec<f64>>,
+    training: usize,
+    gamma: f64,
+    alpha: f64,
+    method: &str,
+    keep_path: bool,
+    long_run_variance: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    use tightscan_core::monitor::{monitor_l1, monitor_ols_cusum, L1MonitorConfig, OlsCusumConfig};
+    let l1 = match method {
+        "l1" => true,
+        "ols_cusum" => false,
+        other => {
+            return Err(to_py_err(
+                py,
+                tightscan_core::TightscanError::parameter("method", format!("expected 'l1' or 'ols_cusum', got '{other}'")),
+            ))
+        }
+    };
+    let m = detached(py, move || {
+        let columns: Vec<&[f64]> = regressors.iter().map(|c| c.as_slice()).collect();
+        Ok(if l1 {
+            let cfg = L1MonitorConfig { gamma, alpha, keep_path, long_run_variance, ..L1MonitorConfig::new(training) };
+            monitor_l1(&columns, &response, &cfg)?
+        } else {
+            let cfg = OlsCusumConfig { gamma, alpha, keep_path, ..OlsCusumConfig::new(training) };
+            monitor_ols_cusum(&columns, &response, &cfg)?
+        })
+    })?;
+    let d = PyDict::new(py);
+    d.set_item("method", method)?;
+    d.set_item("alarm", m.alarm)?;
+    d.set_item("alarm_index", m.alarm_index)?;
+    d.set_item("statistic_at_alarm", m.statistic_at_alarm)?;
+    d.set_item("boundary_at_alarm", m.boundary_at_alarm)?;
+    d.set_item("max_ratio", m.max_ratio)?;
+    d.set_item("gamma", m.gamma)?;
+    d.set_item("alpha", m.alpha)?;
+    d.set_item("critical_value", m.critical_value)?;
+    d.set_item("training", m.training)?;
+    d.set_item("monitored", m.monitored)?;
+    d.set_item("coefficients", m.coefficients)?;
+    d.set_item("scale", m.scale)?;
+    let (statistic, boundary) = m.path.map_or((None, None), |p| (Some(p.statistic), Some(p.boundary)));
+    d.set_item("statistic", statistic)?;
+    d.set_item("boundary", boundary)?;
+    Ok(d)
+}
+
 /// Column names, types, units and meanings of the result table.
 #[pyfunction]
 fn result_columns() -> Vec<(&'static str, String, &'static str, &'static str)> {
@@ -138,6 +198,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(cusum_threshold, m)?)?;
     m.add_function(wrap_pyfunction!(cusum_arl, m)?)?;
+    m.add_function(wrap_pyfunction!(monitor_regression, m)?)?;
     m.add_function(wrap_pyfunction!(result_columns, m)?)?;
     m.add_function(wrap_pyfunction!(monitor_series, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

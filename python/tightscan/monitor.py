@@ -43,6 +43,10 @@ class RegressionMonitor:
     boundary: np.ndarray | None
 
 
+def _path(values: list[float] | None) -> np.ndarray | None:
+    return None if values is None else np.asarray(values, dtype=np.float64)
+
+
 def monitor_regression(
     response: Sequence[float] | np.ndarray,
     regressors: Sequence[Sequence[float]] | np.ndarray | None = None,
@@ -85,7 +89,6 @@ def monitor_regression(
     out = _core.monitor_regression(
         y.tolist(), columns, training, gamma, alpha, method, keep_path, long_run_variance
     )
-    path = (lambda v: None if v is None else np.asarray(v, dtype=np.float64))
     return RegressionMonitor(
         method=out["method"],
         alarm=bool(out["alarm"]),
@@ -100,6 +103,6 @@ def monitor_regression(
         monitored=int(out["monitored"]),
         coefficients=tuple(float(c) for c in out["coefficients"]),
         scale=float(out["scale"]),
-        statistic=path(out["statistic"]),
-        boundary=path(out["boundary"]),
+        statistic=_path(out["statistic"]),
+        boundary=_path(out["boundary"]),
     )

@@ -52,3 +52,24 @@ def test_detect_batch_reports_l1_boundary_gamma_and_alpha() -> None:
     for r in fired:
         assert r["l1_statistic_at_alarm"] > r["l1_boundary_at_alarm"] > 0
     assert all(r["l1_statistic_at_alarm"] is None for r in out if r["l1_alarm"] is False)
+
+
+def test_critical_values_from_the_table_and_by_simulation() -> None:
+    """The table's c(0.05, 0.25, 1) = 2.3832 (published 2.3860); a fresh simulation agrees within
+    3 standard errors (about 0.017 each with 10^4 paths); a finite horizon lowers it; a level
+    off the table is simulated, and monitor_regression names the way there."""
+    table = tightscan.monitoring_critical_value(0.05, 0.25)
+    assert table == pytest.approx(2.3832, abs=1e-4)
+    simulated = tightscan.monitoring_critical_value(0.05, 0.25, simulate=True, seed=3)
+    assert abs(simulated - table) < 0.05
+    assert tightscan.monitoring_critical_value(0.05, 0.25, simulate=True, seed=3, horizon_ratio=4.0) < simulated - 0.05
+    off = tightscan.monitoring_critical_value(0.03, 0.25, simulate=True, seed=3)
+    assert table < off < tightscan.monitoring_critical_value(0.025, 0.25)
+    with pytest.raises(tightscan.InvalidParameterError) as err:
+        tightscan.monitor_regression([float(i % 3) for i in range(60)], alpha=0.03)
+    assert err.value.parameter == "alpha" and "monitoring_critical_value" in str(err.value)
+    m = tightscan.monitor_regression([float(i % 3) for i in range(60)], alpha=0.03, critical_value=off)
+    assert m.critical_value == off
+    with pytest.raises(tightscan.InvalidParameterError) as err:
+        tightscan.monitoring_critical_value(0.05, 0.25, horizon_ratio=2.0)
+    assert err.value.parameter == "horizon_ratio"

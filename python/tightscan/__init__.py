@@ -27,7 +27,7 @@ from .config import (
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
 from .diagnose import diagnose
 from .rexroth import read_rexroth
-from .monitor import RegressionMonitor, monitor_regression
+from .monitor import RegressionMonitor, monitor_regression, monitoring_critical_value
 from .sequence import SequenceMonitor, monitor_sequence
 
 __version__: str = _core.__version__
@@ -48,6 +48,7 @@ __all__ = [
     "read_rexroth",
     "monitor_sequence",
     "monitor_regression",
+    "monitoring_critical_value",
     "RegressionMonitor",
     "SequenceMonitor",
     "simulate",

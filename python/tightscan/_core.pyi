@@ -40,10 +40,22 @@ def monitor_regression(
     method: str = "l1",
     keep_path: bool = True,
     long_run_variance: bool = False,
+    critical_value: float | None = None,
 ) -> dict[str, Any]: ...
+def monitoring_critical_value(
+    alpha: float,
+    gamma: float,
+    p: int = 1,
+    simulate: bool = False,
+    repetitions: int = 10_000,
+    grid: int = 256,
+    seed: int = 0,
+    horizon_ratio: float | None = None,
+) -> float: ...
 
 __all__ = [
     "monitor_regression",
+    "monitoring_critical_value",
     "monitor_series",
     "DEBUG_BUILD",
     "__version__",

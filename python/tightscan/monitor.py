@@ -14,6 +14,7 @@ from typing import Literal, Sequence
 import numpy as np
 
 from . import _core
+from .exceptions import InvalidParameterError
 
 
 @dataclass(frozen=True)
@@ -57,13 +58,16 @@ def monitor_regression(
     method: Literal["l1", "ols_cusum"] = "l1",
     keep_path: bool = True,
     long_run_variance: bool = False,
+    critical_value: float | None = None,
 ) -> RegressionMonitor:
     """Monitors ``response`` on ``regressors`` (columns besides the intercept; ``None``: a
     location) after the first ``training`` observations, with the boundary
     g(m, k, gamma) = c sqrt(m) (1 + k/m) (k/(m+k))^gamma and c from the shipped table at
     (``alpha``, ``gamma``, p). ``method="l1"``: least-absolute-deviation fit and sign residuals
     (Huskova and Koubkova); ``"ols_cusum"``: Horvath et al. (2004). ``long_run_variance``
-    corrects L1 for dependent errors (Bartlett).
+    corrects L1 for dependent errors (Bartlett). ``critical_value`` replaces the table's c, e.g.
+    ``monitoring_critical_value(alpha, gamma, p, simulate=True)`` for a level or gamma off the
+    table's grid, or with ``horizon_ratio`` for a finite horizon.
 
     Regressors should be stationary (speed, a block's torque rate): a trending one such
     as the angle or the clamp force is extrapolated far beyond its training range, which tilts the signs
@@ -86,9 +90,18 @@ def monitor_regression(
         if x.ndim == 1:
             x = x[None, :]
         columns = [list(map(float, c)) for c in x]
-    out = _core.monitor_regression(
-        y.tolist(), columns, training, gamma, alpha, method, keep_path, long_run_variance
-    )
+    try:
+        out = _core.monitor_regression(
+            y.tolist(), columns, training, gamma, alpha, method, keep_path, long_run_variance, critical_value
+        )
+    except InvalidParameterError as err:
+        if critical_value is None and err.parameter in ("alpha", "gamma"):
+            raise InvalidParameterError(
+                f"{err}; off the table, pass critical_value=monitoring_critical_value("
+                f"{alpha}, {gamma}, {len(columns) + 1}, simulate=True)",
+                parameter=err.parameter,
+            ) from err
+        raise
     return RegressionMonitor(
         method=out["method"],
         alarm=bool(out["alarm"]),
@@ -106,3 +119,28 @@ def monitor_regression(
         statistic=_path(out["statistic"]),
         boundary=_path(out["boundary"]),
     )
+
+
+def monitoring_critical_value(
+    alpha: float,
+    gamma: float,
+    p: int = 1,
+    *,
+    simulate: bool = False,
+    repetitions: int = 10_000,
+    grid: int = 256,
+    seed: int = 0,
+    horizon_ratio: float | None = None,
+) -> float:
+    """Critical value c(alpha, gamma, p) of the boundary c sqrt(m) (1 + k/m) (k/(m+k))^gamma
+    (p: parameters of the regression, intercept included). From the shipped table (alpha 0.1,
+    0.05, 0.025, 0.01; gamma 0 to 0.49), or with ``simulate=True`` by Monte Carlo for any
+    alpha and gamma: ``repetitions`` Brownian paths on ``grid`` steps per unit, corrected to the
+    continuous supremum as the table was; standard error about 0.02 at alpha 0.05 with 10^4
+    paths. ``horizon_ratio`` T gives the value for monitoring T training lengths instead of
+    open-ended (smaller; simulated only).
+
+    >>> round(monitoring_critical_value(0.05, 0.0), 4)
+    2.2418
+    """
+    return _core.monitoring_critical_value(alpha, gamma, p, simulate, repetitions, grid, seed, horizon_ratio)

@@ -127,7 +127,7 @@ fn monitor_series<'py>(
 /// columns besides the intercept. With `keep_path` the detector and boundary of every monitored
 /// k are returned, for plots.
 #[pyfunction]
-#[pyo3(signature = (response, regressors=Vec::new(), training=20, gamma=0.25, alpha=0.05, method="l1", keep_path=true, long_run_variance=false))]
+#[pyo3(signature = (response, regressors=Vec::new(), training=20, gamma=0.25, alpha=0.05, method="l1", keep_path=true, long_run_variance=false, critical_value=None))]
 #[allow(clippy::too_many_arguments)]
 fn monitor_regression<'py>(
     py: Python<'py>,
@@ -139,6 +139,7 @@ fn monitor_regression<'py>(
     method: &str,
     keep_path: bool,
     long_run_variance: bool,
+    critical_value: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     use tightscan_core::monitor::{monitor_l1, monitor_ols_cusum, L1MonitorConfig, OlsCusumConfig};
     let l1 = match method {
@@ -154,10 +155,10 @@ fn monitor_regression<'py>(
     let m = detached(py, move || {
         let columns: Vec<&[f64]> = regressors.iter().map(|c| c.as_slice()).collect();
         Ok(if l1 {
-            let cfg = L1MonitorConfig { gamma, alpha, keep_path, long_run_variance, ..L1MonitorConfig::new(training) };
+            let cfg = L1MonitorConfig { gamma, alpha, keep_path, long_run_variance, critical_value, ..L1MonitorConfig::new(training) };
             monitor_l1(&columns, &response, &cfg)?
         } else {
-            let cfg = OlsCusumConfig { gamma, alpha, keep_path, ..OlsCusumConfig::new(training) };
+            let cfg = OlsCusumConfig { gamma, alpha, keep_path, critical_value, ..OlsCusumConfig::new(training) };
             monitor_ols_cusum(&columns, &response, &cfg)?
         })
     })?;
@@ -181,6 +182,41 @@ fn monitor_regression<'py>(
     Ok(d)
 }
 
+/// Critical value c(alpha, gamma, p) of the monitoring boundary: the shipped table, or with
+/// `simulate` a fresh Monte Carlo value for any (alpha, gamma, p), optionally for a finite
+/// horizon of `horizon_ratio` training lengths (`tightscan_core::critical_values`).
+#[pyfunction]
+#[pyo3(signature = (alpha, gamma, p=1, simulate=false, repetitions=10_000, grid=256, seed=0, horizon_ratio=None))]
+#[allow(clippy::too_many_arguments)]
+fn monitoring_critical_value(
+    py: Python<'_>,
+    alpha: f64,
+    gamma: f64,
+    p: usize,
+    simulate: bool,
+    repetitions: usize,
+    grid: usize,
+    seed: u64,
+    horizon_ratio: Option<f64>,
+) -> PyResult<f64> {
+    use tightscan_core::critical_values as cv;
+    if !simulate {
+        if horizon_ratio.is_some() {
+            return Err(to_py_err(
+                py,
+                tightscan_core::TightscanError::parameter("horizon_ratio", "the table is open-ended; a finite horizon needs simulate=True"),
+            ));
+        }
+        return cv::critical_value(alpha, gamma, p).map_err(|e| to_py_err(py, e));
+    }
+    detached(py, move || {
+        Ok(match horizon_ratio {
+            Some(t) => cv::simulate_critical_value_horizon(alpha, gamma, p, t, repetitions, grid, seed)?,
+            None => cv::simulate_critical_value(alpha, gamma, p, repetitions, grid, seed)?,
+        })
+    })
+}
+
 /// Column names, types, units and meanings of the result table.
 #[pyfunction]
 fn result_columns() -> Vec<(&'static str, String, &'static str, &'static str)> {
@@ -199,6 +235,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cusum_threshold, m)?)?;
     m.add_function(wrap_pyfunction!(cusum_arl, m)?)?;
     m.add_function(wrap_pyfunction!(monitor_regression, m)?)?;
+    m.add_function(wrap_pyfunction!(monitoring_critical_value, m)?)?;
     m.add_function(wrap_pyfunction!(result_columns, m)?)?;
     m.add_function(wrap_pyfunction!(monitor_series, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -71,6 +71,21 @@ impl Sums {
         self.xy += x * y;
         self.yy += y * y;
     }
+    /// Fills `prefix` with the running sums (x, y, xx, xy, yy) over `x`, `y` and returns the total.
+    fn prefixes(x: &[f64], y: &[f64], prefix: &mut Vec<(f64, f64, f64, f64, f64)>) -> Sums {
+        let mut total = Sums::default();
+        prefix.clear();
+        for (&xi, &yi) in x.iter().zip(y) {
+            total.add(xi, yi);
+            prefix.push((total.x, total.y, total.xx, total.xy, total.yy));
+        }
+        total
+    }
+    /// Sums over the first `k` >= 1 samples, from [`Sums::prefixes`].
+    fn first(prefix: &[(f64, f64, f64, f64, f64)], k: usize) -> Sums {
+        let p = prefix[k - 1];
+        Sums { n: k as f64, x: p.0, y: p.1, xx: p.2, xy: p.3, yy: p.4 }
+    }
     fn minus(&self, o: &Sums) -> Sums {
         Sums {
             n: self.n - o.n,
@@ -103,12 +118,7 @@ pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f
     if n < 2 * min_segment || y.len() != n {
         return None;
     }
-    let mut total = Sums::default();
-    prefix.clear();
-    for i in 0..n {
-        total.add(x[i], y[i]);
-        prefix.push((total.x, total.y, total.xx, total.xy, total.yy));
-    }
+    let total = Sums::prefixes(x, y, prefix);
     let (_, _, rss0) = total.fit();
     if !(rss0 > 0.0) {
         return None;
@@ -116,8 +126,7 @@ pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f
     let mut best: Option<BreakScan> = None;
     let mut best_rss = f64::INFINITY;
     for k in min_segment..=(n - min_segment) {
-        let p = prefix[k - 1];
-        let left = Sums { n: k as f64, x: p.0, y: p.1, xx: p.2, xy: p.3, yy: p.4 };
+        let left = Sums::first(prefix, k);
         let right = total.minus(&left);
         let (_, _, rl) = left.fit();
         let (_, _, rr) = right.fit();
@@ -179,12 +188,7 @@ pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, prefix: &mut Vec<(f64, f
     if max_tail == 0 {
         return None;
     }
-    let mut total = Sums::default();
-    prefix.clear();
-    for i in 0..n {
-        total.add(x[i], y[i]);
-        prefix.push((total.x, total.y, total.xx, total.xy, total.yy));
-    }
+    let total = Sums::prefixes(x, y, prefix);
     let (_, _, rss_n) = total.fit();
     // Exact F tails cost a continued fraction each. The shortest tails (k <= 4), where a large
     // friction rise shows, get the exact tail always; longer ones are ranked by the
@@ -196,8 +200,7 @@ pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, prefix: &mut Vec<(f64, f
     let mut ranked = [(f64::NEG_INFINITY, 0usize, 0.0f64); 2];
     for k in 1..=max_tail {
         let m = n - k;
-        let p = prefix[m - 1];
-        let front = Sums { n: m as f64, x: p.0, y: p.1, xx: p.2, xy: p.3, yy: p.4 };
+        let front = Sums::first(prefix, m);
         let (_, _, rss_m) = front.fit();
         if !(rss_m > 0.0) {
             continue;
@@ -231,8 +234,7 @@ pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, prefix: &mut Vec<(f64, f
             Err(_) => continue,
         };
         if best.is_none_or(|(bp, ..)| p_k < bp) {
-            let p = prefix[m - 1];
-            let front = Sums { n: m as f64, x: p.0, y: p.1, xx: p.2, xy: p.3, yy: p.4 };
+            let front = Sums::first(prefix, m);
             let (a, b, _) = front.fit();
             let tail = total.minus(&front);
             best = Some((p_k, k, (tail.y - a * tail.n - b * tail.x) / tail.n));

@@ -465,6 +465,7 @@ struct Scratch {
     index: Vec<usize>,
     prefix: Vec<(f64, f64, f64, f64, f64)>,
     line_residuals: Vec<f64>,
+    bits: Vec<u64>,
     block_first: Vec<usize>,
     has_force: bool,
     regressor: Vec<f64>,
@@ -1249,7 +1250,7 @@ impl Detector {
         let line = if s.stops.is_empty() {
             line
         } else {
-            refit = crate::phases::robust_line(&s.x, &s.y, &mut s.line_residuals)?;
+            refit = crate::phases::robust_line(&s.x, &s.y, &mut s.bits)?;
             &refit
         };
         s.line_residuals.clear();

@@ -114,6 +114,20 @@ fn median_in_place(v: &mut [f64]) -> f64 {
     }
 }
 
+/// Median of non-negative floats given as bit patterns (reorders them); `v` must not be empty.
+fn median_of_non_negative_bits(v: &mut [u64]) -> f64 {
+    let len = v.len();
+    let mid = len / 2;
+    let (lo, m, _) = v.select_nth_unstable(mid);
+    let m = f64::from_bits(*m);
+    if len % 2 == 1 {
+        m
+    } else {
+        let below = lo.iter().copied().max().map_or(m, f64::from_bits);
+        0.5 * (below + m)
+    }
+}
+
 /// Fewest window samples for the phases and the robust torque rate. The detectors need more
 /// (`ElasticZoneConfig::min_samples`, checked by the caller): a short real curve still gets its
 /// phases and friction estimate, which is what monitoring across tightenings uses.
@@ -130,7 +144,7 @@ const MAD_TO_SD: f64 = 1.482_602_218_505_602;
 /// relative difference is 3e-7 but its 95th percentile 0.8 % (windows holding a CSDT pause or a
 /// fault converge slowly). Re-estimating the scale in the first two steps only was tried for
 /// speed and dropped: it doubled that percentile.
-pub fn robust_line(x: &[f64], y: &[f64], scratch: &mut Vec<f64>) -> Option<Line> {
+pub fn robust_line(x: &[f64], y: &[f64], scratch: &mut Vec<u64>) -> Option<Line> {
     let n = x.len();
     let (mut a, mut b) = weighted_line(x, y, None)?;
     // Sums are taken about the unweighted means, so the one-pass weighted sums below do not
@@ -138,9 +152,11 @@ pub fn robust_line(x: &[f64], y: &[f64], scratch: &mut Vec<f64>) -> Option<Line>
     let (mx, my) = (x.iter().sum::<f64>() / n as f64, y.iter().sum::<f64>() / n as f64);
     let mut scale = 0.0;
     for _ in 0..4 {
+        // Absolute residuals as their IEEE bit patterns: for non-negative floats the integer
+        // order is the numeric order, and integer selection is the cheaper median.
         scratch.clear();
-        scratch.extend((0..n).map(|i| (y[i] - a - b * x[i]).abs()));
-        scale = MAD_TO_SD * median_in_place(scratch);
+        scratch.extend((0..n).map(|i| (y[i] - a - b * x[i]).abs().to_bits()));
+        scale = MAD_TO_SD * median_of_non_negative_bits(scratch);
         if scale <= 0.0 || !scale.is_finite() {
             // Over half the residuals are exactly zero: the least-squares line is exact there.
             break;
@@ -397,7 +413,7 @@ fn fit<A: Sample, T: Sample>(angle: &[A], torque: &[T], w: ElasticWindow, s: &mu
     s.y.clear();
     s.x.extend(angle[w.start..w.end].iter().map(|a| a.to_f64() - a0));
     s.y.extend(torque[w.start..w.end].iter().map(|t| t.to_f64() - t0));
-    robust_line(&s.x, &s.y, &mut s.values)
+    robust_line(&s.x, &s.y, &mut s.bits)
 }
 
 /// Yield onset: the first of at least two trailing equal-angle blocks, between the window's
@@ -469,6 +485,7 @@ fn find_yield<A: Sample, T: Sample>(
 #[derive(Clone, Debug, Default)]
 pub struct PhaseScratch {
     values: Vec<f64>,
+    bits: Vec<u64>,
     x: Vec<f64>,
     y: Vec<f64>,
 }
@@ -481,7 +498,7 @@ impl PhaseScratch {
         let (x0, y0) = (x.first()?.to_f64(), y.first()?.to_f64());
         self.x.extend(x.iter().map(|v| v.to_f64() - x0));
         self.y.extend(y.iter().map(|v| v.to_f64() - y0));
-        robust_line(&self.x, &self.y, &mut self.values)
+        robust_line(&self.x, &self.y, &mut self.bits)
     }
 }
 

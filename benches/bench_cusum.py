@@ -43,6 +43,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 import tightscan
+from _benchutil import cpu_busy
 from tightscan import _core
 
 RESULTS = Path(__file__).resolve().parent / "results" / "bench_cusum.json"
@@ -408,22 +409,6 @@ def parquet_figures(table: pa.Table, samples: int, repeat: int, tmp: Path) -> di
 
 
 # ---------------------------------------------------------------------------------------------
-
-
-def cpu_busy(seconds: float = 1.0) -> float | None:
-    """Share of all CPUs busy over ``seconds`` (from /proc/stat), before the benchmark starts."""
-    def snap() -> tuple[int, int]:
-        with open("/proc/stat") as f:
-            v = [int(x) for x in f.readline().split()[1:]]
-        return sum(v), v[3] + v[4]  # total, idle + iowait
-
-    try:
-        t0, i0 = snap()
-        time.sleep(seconds)
-        t1, i1 = snap()
-    except (OSError, ValueError, IndexError):
-        return None
-    return 1.0 - (i1 - i0) / max(t1 - t0, 1)
 
 
 def single_thread_worker(n: int, seed: int, repeat: int) -> None:

@@ -56,6 +56,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 import tightscan
+from _benchutil import cpu_busy
 from tightscan import _core
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -787,23 +788,6 @@ def plot(path: Path, panels: list[tuple[str, list[Outcome], pd.DataFrame]], edge
 
 
 # ---------------------------------------------------------------------------------------------
-
-
-def cpu_busy(seconds: float = 1.0) -> float | None:
-    """Share of all CPUs busy over ``seconds`` (from /proc/stat), before the benchmark starts:
-    the wall times printed are only meaningful on an otherwise idle machine."""
-    def snap() -> tuple[int, int]:
-        with open("/proc/stat") as f:
-            v = [int(x) for x in f.readline().split()[1:]]
-        return sum(v), v[3] + v[4]  # total, idle + iowait
-
-    try:
-        t0, i0 = snap()
-        time.sleep(seconds)
-        t1, i1 = snap()
-    except (OSError, ValueError, IndexError):
-        return None
-    return 1.0 - (i1 - i0) / max(t1 - t0, 1)
 
 
 def pool_map(ex: ProcessPoolExecutor, fn: Callable[[Any], T], items: list[Any]) -> list[T]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Iterable, Iterator, Sequence, Union
@@ -16,6 +15,7 @@ import pyarrow.parquet as pq
 from . import _core
 from .config import ConfigLike, as_dict
 from ._paths import expand_paths
+from ._progress import Progress
 from .exceptions import DataFileError, SchemaError
 
 if TYPE_CHECKING:
@@ -256,34 +256,6 @@ def _split_trailing_tightening(batch: pa.RecordBatch) -> tuple[pa.RecordBatch, p
     return batch.slice(0, cut), batch.slice(cut)
 
 
-class _Progress:
-    """A progress bar on an interactive terminal; nothing otherwise."""
-
-    def __init__(self, total: int, enabled: bool | None) -> None:
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
-        self.bar: Any = None
-        if self.enabled:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-            self.bar = Progress(
-                "[progress.description]{task.description}",
-                BarColumn(),
-                MofNCompleteColumn(),
-                TimeRemainingColumn(),
-                transient=True,
-            )
-            self.bar.start()
-            self.task = self.bar.add_task("scanning rows", total=total)
-
-    def advance(self, n: int) -> None:
-        if self.bar is not None:
-            self.bar.advance(self.task, n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()
-
-
 def scan_parquet(
     source: PathLike | Sequence[PathLike],
     destination: PathLike,
@@ -316,7 +288,7 @@ def scan_parquet(
     )
     total = sum(d.count_rows() for _, d in datasets)
     summary = ScanSummary(destination=os.fspath(destination), files=len(files))
-    bar = _Progress(total, progress)
+    bar = Progress("scanning rows", total, progress)
     seen: set[Any] = set()
     carry: pa.RecordBatch | None = None
 

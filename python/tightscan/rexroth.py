@@ -35,7 +35,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import sys
 from array import array
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -49,6 +48,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from ._paths import expand_paths
+from ._progress import Progress
 from .exceptions import DataFileError, InvalidParameterError, SchemaError
 
 __all__ = ["read_rexroth", "write_rexroth", "join_labels", "rexroth_schema", "RexrothImport", "STATUS_CODES"]
@@ -374,33 +374,6 @@ def _expand(paths: PathLike | Sequence[PathLike]) -> list[str]:
     return expand_paths(items, "*.json", recursive=False)
 
 
-class _Progress:
-    """A progress bar on an interactive terminal; nothing otherwise (as in ``scan_parquet``)."""
-
-    def __init__(self, total: int, enabled: bool | None) -> None:
-        self.bar: Any = None
-        if sys.stderr.isatty() if enabled is None else enabled:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-            self.bar = Progress(
-                "[progress.description]{task.description}",
-                BarColumn(),
-                MofNCompleteColumn(),
-                TimeRemainingColumn(),
-                transient=True,
-            )
-            self.bar.start()
-            self.task = self.bar.add_task("importing Rexroth runs", total=total)
-
-    def advance(self, n: int = 1) -> None:
-        if self.bar is not None:
-            self.bar.advance(self.task, n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()
-
-
 def _list_array(lengths: list[int | None], values: pa.Array) -> pa.Array:
     """One list per row from flat values; a ``None`` length is a null row."""
     counts = np.fromiter((n or 0 for n in lengths), dtype=np.int64, count=len(lengths))
@@ -511,7 +484,7 @@ def read_rexroth(
     """
     files = _expand(paths)
     channel_keys = _CHANNELS + (_REDUNDANT if keep_redundant else ())
-    bar = _Progress(len(files), progress)
+    bar = Progress("importing Rexroth runs", len(files), progress)
     rows: list[RexrothImport] = []
     try:
         for path in files:

@@ -671,20 +671,7 @@ impl Detector {
                 }
                 let mut row = self.analyse_row(&table, i, scratch);
                 row.decision = self.decide(&row);
-                // A window too short or too gappy for the CUSUM's blocks is still analysed when
-                // another detector of the rule ran (the break scan needs 20 samples, the CUSUM
-                // 50): the row is `ok`, and the columns of the detector that could not run are null.
-                if row.decision.is_some()
-                    && matches!(row.status, TighteningStatus::TooShort { .. } | TighteningStatus::NoElasticZone { .. })
-                {
-                    row.status = TighteningStatus::Ok;
-                }
-                // Nothing of the rule ran: name what the least demanding detector needs.
-                if let TighteningStatus::TooShort { minimum, what: "elastic window", .. } = &mut row.status {
-                    if self.config.decision.detectors.contains(&DetectorKind::Break) {
-                        *minimum = (*minimum).min(2 * MIN_SEGMENT);
-                    }
-                }
+                self.settle_status(&mut row);
                 row
             })
             .collect();
@@ -1190,6 +1177,23 @@ impl Detector {
         })
     }
 
+    /// The status once the rule has decided. A window too short or too gappy for the CUSUM's
+    /// blocks is still analysed when another detector of the rule ran (the break scan needs 20
+    /// samples, the CUSUM 50): the row is `ok`, and the columns of the detector that could not
+    /// run are null. When nothing of the rule ran, a short window names what the least demanding
+    /// detector needs.
+    fn settle_status(&self, row: &mut RowResult) {
+        if row.decision.is_some() {
+            if matches!(row.status, TighteningStatus::TooShort { .. } | TighteningStatus::NoElasticZone { .. }) {
+                row.status = TighteningStatus::Ok;
+            }
+        } else if let TighteningStatus::TooShort { minimum, what: "elastic window", .. } = &mut row.status {
+            if self.config.decision.detectors.contains(&DetectorKind::Break) {
+                *minimum = (*minimum).min(2 * MIN_SEGMENT);
+            }
+        }
+    }
+
     /// The decision rule over the detectors that could run. `None` when none of the rule's
     /// detectors ran (the tightening could not be analysed).
     fn decide(&self, r: &RowResult) -> Option<DecisionRow> {
@@ -1214,20 +1218,19 @@ impl Detector {
         }
         let fires = |k: DetectorKind| state(k).is_some_and(|s| s.0);
         let count = in_rule.iter().filter(|&&k| fires(k)).count();
-        // The detectors whose alarms count for this decision: all of the rule's, or those a
-        // matching row of the table requires.
-        let (detected, locating): (bool, Vec<DetectorKind>) = match &d.rule {
-            DecisionRule::Any => (count >= 1, in_rule.clone()),
-            DecisionRule::AtLeast(k) => (count >= *k, in_rule.clone()),
+        // The detectors whose alarms place the change: all of the rule's, or those the matching
+        // row of the table requires to fire.
+        let (detected, matched_row) = match &d.rule {
+            DecisionRule::Any => (count >= 1, None),
+            DecisionRule::AtLeast(k) => (count >= *k, None),
             DecisionRule::Table(rows) => {
-                match rows.iter().find(|row| row.iter().all(|&(k, want)| fires(k) == want)) {
-                    Some(row) => (true, order.iter().copied().filter(|k| row.contains(&(*k, true))).collect()),
-                    None => (false, Vec::new()),
-                }
+                let row = rows.iter().find(|row| row.iter().all(|&(k, want)| fires(k) == want));
+                (row.is_some(), row)
             }
         };
+        let locates = |k: DetectorKind| matched_row.map_or(in_rule.contains(&k), |row| row.contains(&(k, true)));
         let change = if detected {
-            locating.iter().filter_map(|&k| state(k).filter(|s| s.0).and_then(|s| s.1)).next()
+            order.iter().filter(|&&k| locates(k)).filter_map(|&k| state(k).filter(|s| s.0).and_then(|s| s.1)).next()
         } else {
             None
         };

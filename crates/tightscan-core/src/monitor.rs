@@ -511,6 +511,27 @@ struct Monitoring {
     path: Option<MonitorPath>,
 }
 
+impl Monitoring {
+    /// The result fields both detectors share; each sets its `coefficients` and `scale`.
+    fn into_result(self, m: usize, n: usize, critical_value: f64, gamma: f64, alpha: f64) -> MonitorResult {
+        MonitorResult {
+            alarm: self.alarm_index.is_some(),
+            alarm_index: self.alarm_index,
+            statistic_at_alarm: self.statistic_at_alarm,
+            boundary_at_alarm: self.boundary_at_alarm,
+            max_ratio: self.max_ratio,
+            gamma,
+            alpha,
+            critical_value,
+            training: m,
+            monitored: n - m,
+            coefficients: Vec::new(),
+            scale: 1.0,
+            path: self.path,
+        }
+    }
+}
+
 fn run_monitoring(
     m: usize,
     n: usize,
@@ -594,19 +615,9 @@ pub fn monitor_l1(regressors: &[&[f64]], response: &[f64], config: &L1MonitorCon
     let boundary = |k: usize| c2 * boundary_shape(m, k, gamma).powi(2);
     let run = run_monitoring(m, n, config.keep_path, true, step, boundary);
     Ok(MonitorResult {
-        alarm: run.alarm_index.is_some(),
-        alarm_index: run.alarm_index,
-        statistic_at_alarm: run.statistic_at_alarm,
-        boundary_at_alarm: run.boundary_at_alarm,
-        max_ratio: run.max_ratio,
-        gamma,
-        alpha: config.alpha,
-        critical_value: c,
-        training: m,
-        monitored: n - m,
         coefficients: design.original_units(&beta),
         scale: scale_sq.sqrt(),
-        path: run.path,
+        ..run.into_result(m, n, c, gamma, config.alpha)
     })
 }
 
@@ -635,21 +646,7 @@ pub fn monitor_ols_cusum(regressors: &[&[f64]], response: &[f64], config: &OlsCu
     let root_m = (m as f64).sqrt();
     let boundary = |k: usize| c * root_m * boundary_shape(m, k, gamma);
     let run = run_monitoring(m, n, config.keep_path, false, step, boundary);
-    Ok(MonitorResult {
-        alarm: run.alarm_index.is_some(),
-        alarm_index: run.alarm_index,
-        statistic_at_alarm: run.statistic_at_alarm,
-        boundary_at_alarm: run.boundary_at_alarm,
-        max_ratio: run.max_ratio,
-        gamma,
-        alpha: config.alpha,
-        critical_value: c,
-        training: m,
-        monitored: n - m,
-        coefficients: design.original_units(&beta),
-        scale: sigma,
-        path: run.path,
-    })
+    Ok(MonitorResult { coefficients: design.original_units(&beta), scale: sigma, ..run.into_result(m, n, c, gamma, config.alpha) })
 }
 
 #[cfg(test)]

@@ -52,7 +52,7 @@ GOAL_RUST_SAMPLES_PER_S = 100e6
 GOAL_SPEEDUP_VS_NUMPY = 20.0
 GOAL_SCAN_OVER_READ = 1.5
 
-# Constants of crates/tightscan-core/src/detect.rs.
+# Constants of crates/tightscan-core/src/engine/decision.rs.
 Z_0999 = 3.090232306
 F64_MIN_POSITIVE = sys.float_info.min
 
@@ -154,7 +154,7 @@ def detect_one(a: np.ndarray, t: np.ndarray, p: Params) -> Row:
     if n < p.min_samples or a.min() == a.max():
         return FAILED
 
-    # Elastic window (signal.rs elastic_window).
+    # Elastic window (physics/torque_rate.rs elastic_window).
     i_peak = int(t.argmax())  # first maximum, as Rust's strict '>'
     peak = float(t[i_peak])
     if peak <= float(t.min()):
@@ -179,7 +179,7 @@ def detect_one(a: np.ndarray, t: np.ndarray, p: Params) -> Row:
     if length < p.min_samples or a[end - 1] <= a[start]:
         return FAILED
 
-    # Equal-angle blocks and their least-squares sums (signal.rs block_stats).
+    # Equal-angle blocks and their least-squares sums (physics/torque_rate.rs block_stats).
     nb = min(length // p.min_block_samples, p.max_blocks)
     if nb < p.min_training_blocks + 2:
         return FAILED
@@ -198,7 +198,7 @@ def detect_one(a: np.ndarray, t: np.ndarray, p: Params) -> Row:
     sxy = np.bincount(b, xl * y, nb)
     syy = np.bincount(b, y * y, nb)
 
-    # CSDT stops: runs of unchanged angle 10x the mean run (signal.rs stop_ranges).
+    # CSDT stops: runs of unchanged angle 10x the mean run (physics/torque_rate.rs stop_ranges).
     change = np.flatnonzero(wa[1:] != wa[:-1]) + 1
     runs = change.size + 1
     stop_len = max((10 * length) // runs, 10)

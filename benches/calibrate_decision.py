@@ -1,4 +1,4 @@
-"""Remeasures the decision rule's calibration (detect.rs ``DECISION_CALIBRATION``).
+"""Remeasures the decision rule's calibration (engine/decision.rs ``DECISION_CALIBRATION``).
 
 For each internal alpha of the table, the false-alarm rate of the default rule (any of break and
 cusum) on in-control simulated tightenings of all strategies with the simulator's defaults. The

@@ -28,7 +28,7 @@ TORQUE_NOISE = 0.002
 N = 600
 
 # ISO metric coarse threads of the simulator's default set: pitch, d2, Dkm [mm]
-# (crates/tightscan-core/src/thread.rs: d2 = d - 0.6495 P, Dkm = (dw + dh) / 2)
+# (crates/tightscan-core/src/physics/thread.rs: d2 = d - 0.6495 P, Dkm = (dw + dh) / 2)
 THREADS = {
     "M6": (1.0, 6.0 - 0.6495 * 1.0, (8.88 + 6.6) / 2),
     "M8": (1.25, 8.0 - 0.6495 * 1.25, (11.63 + 9.0) / 2),

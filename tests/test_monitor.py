@@ -1,6 +1,6 @@
 """`monitor_regression`: the whole detector and boundary path of one series, and the L1
 columns of `detect_batch`. Size and power of the procedures themselves are Rust tests
-(crates/tightscan-core/src/monitor.rs) and R oracles (tests/oracles)."""
+(crates/tightscan-core/src/detectors/monitor.rs) and R oracles (tests/oracles)."""
 
 from __future__ import annotations
 

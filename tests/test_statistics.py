@@ -25,7 +25,7 @@ def clean() -> pa.Table:
 
 @pytest.mark.parametrize("alpha", [0.05, 0.01])
 def test_decision_rule_holds_its_false_alarm_rate(clean: pa.Table, alpha: float) -> None:
-    # Calibrated on 100,000 other in-control curves (detect.rs DECISION_CALIBRATION); measured on
+    # Calibrated on 100,000 other in-control curves (engine/decision.rs DECISION_CALIBRATION); measured on
     # this seed 4.8 % at 0.05 and 1.08 % at 0.01. Without the calibration the rule gave 4.0 % at 0.05 and 1.4 %
     # at 0.01, both outside these bounds.
     results = tightscan.detect_batch(clean, config={"alpha": alpha})

@@ -48,10 +48,10 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use tightscan_core::cusum::TwoSidedCusum;
-use tightscan_core::input::{ChannelRow, Samples, TighteningTable};
-use tightscan_core::phases::{find_phases, PhaseScratch};
-use tightscan_core::signal::{block_count, block_stats, stop_ranges, Blocks, ElasticWindow};
+use tightscan_core::detectors::cusum::TwoSidedCusum;
+use tightscan_core::engine::input::{ChannelRow, Samples, TighteningTable};
+use tightscan_core::physics::phases::{find_phases, PhaseScratch};
+use tightscan_core::physics::torque_rate::{block_count, block_stats, stop_ranges, Blocks, ElasticWindow};
 use tightscan_core::simulate::{simulate, EffectsConfig, SimulationConfig};
 use tightscan_core::{DetectConfig, Detector};
 
@@ -152,7 +152,7 @@ fn bench_simulate(c: &mut Criterion) {
 }
 
 /// The f32 samples of `row` of `column`, or `None` for a null row.
-fn f32_row<'a>(column: &tightscan_core::input::ChannelColumn<'a>, row: usize) -> Option<Samples<'a>> {
+fn f32_row<'a>(column: &tightscan_core::engine::input::ChannelColumn<'a>, row: usize) -> Option<Samples<'a>> {
     match column.row(row) {
         ChannelRow::Present { samples, .. } => Some(samples),
         ChannelRow::Null => None,

@@ -1,4 +1,4 @@
-# Oracle fixtures for tightscan-core (crates/tightscan-core/src/monitor.rs and cusum.rs).
+# Oracle fixtures for tightscan-core (crates/tightscan-core/src/detectors/monitor.rs and cusum.rs).
 #
 # Run once, from anywhere:  Rscript tests/oracles/make_oracles.R
 # Needs the Debian packages r-base-core, r-cran-strucchange and r-cran-spc. Writes plain-text

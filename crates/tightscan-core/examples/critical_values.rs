@@ -1,4 +1,4 @@
-//! Regenerates `CRITICAL_VALUES` in `src/critical_values.rs` (method in that module's docs).
+//! Regenerates `CRITICAL_VALUES` in `src/detectors/critical_values.rs` (method in that module's docs).
 //!
 //! `cargo run --release -p tightscan-core --example critical_values [scale]`
 //!
@@ -11,7 +11,7 @@
 
 use std::time::Instant;
 
-use tightscan_core::critical_values::{
+use tightscan_core::detectors::critical_values::{
     simulate_suprema, SupremumSample, SupremumSimulation, ALPHA_GRID, GAMMA_GRID, MAX_DIMENSION,
     TABLE_FINEST_STEP_LOG2, TABLE_REPETITIONS_HIGH_GAMMA, TABLE_REPETITIONS_LOW_GAMMA, TABLE_SEED,
 };

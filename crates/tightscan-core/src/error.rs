@@ -5,7 +5,7 @@ use thiserror::Error;
 /// Everything that can go wrong in the core that is not a per-tightening problem.
 ///
 /// Per-tightening problems (too short, NaN, ...) never become an error: they become a result
-/// row with a status (see [`crate::status::TighteningStatus`]).
+/// row with a status (see [`crate::engine::status::TighteningStatus`]).
 #[derive(Debug, Error)]
 pub enum TightscanError {
     /// The table does not follow the data contract; names the column.

@@ -3,22 +3,14 @@
 //! Pure Rust, no Python: the `tightscan-python` crate only converts types and errors.
 #![doc = include_str!("../README.md")]
 
-pub mod breakpoint;
-pub mod critical_values;
-pub mod cusum;
-pub mod detect;
-pub mod error;
-pub mod input;
-pub mod kde;
-pub mod monitor;
-pub mod phases;
-pub mod schema;
-pub mod sequence;
-pub mod shewhart;
-pub mod signal;
+// Layers, each using only those listed after it: engine -> detectors -> physics; simulate
+// uses physics only; error and sample serve every layer (docs/architecture.md).
+pub mod engine;
+pub mod detectors;
+pub mod physics;
 pub mod simulate;
-pub mod status;
-pub mod thread;
+pub mod error;
+pub mod sample;
 
-pub use detect::{CusumConfig, DetectConfig, Detector};
+pub use engine::{CusumConfig, DetectConfig, Detector};
 pub use error::{Result, TightscanError};

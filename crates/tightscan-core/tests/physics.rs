@@ -10,7 +10,7 @@ use arrow_array::types::Float64Type;
 use arrow_array::{Array, ArrayRef, Float64Array, RecordBatch, StringArray};
 use arrow_schema::{DataType, Field, Schema};
 use tightscan_core::simulate::{simulate, SimulationConfig};
-use tightscan_core::thread::{parse_thread, JointGeometry};
+use tightscan_core::physics::thread::{parse_thread, JointGeometry};
 use tightscan_core::{DetectConfig, Detector};
 
 fn f64_col<'a>(b: &'a RecordBatch, name: &str) -> &'a Float64Array {

@@ -4,7 +4,7 @@
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyDictMethods};
 use tightscan_core::simulate::{FaultComponent, FaultKind, SimulationConfig, Strategy};
-use tightscan_core::detect::{DecisionRule, DetectorKind};
+use tightscan_core::engine::{DecisionRule, DetectorKind};
 use tightscan_core::{DetectConfig, TightscanError};
 
 use crate::errors::to_py_err;

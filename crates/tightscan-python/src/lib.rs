@@ -12,7 +12,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use pyo3_arrow::input::AnyRecordBatch;
 use pyo3_arrow::{PySchema, PyTable};
-use tightscan_core::{cusum, simulate as sim, Detector};
+use tightscan_core::detectors::cusum;
+use tightscan_core::{simulate as sim, Detector};
 
 use crate::errors::{detached, to_py_err};
 
@@ -93,7 +94,7 @@ fn cusum_arl(h: f64, kappa: f64, shift: f64, two_sided: bool) -> f64 {
 }
 
 /// Monitors one series of per-tightening values in production order (see
-/// `tightscan_core::sequence`): self-starting CUSUM and L1 sign monitoring after `training`
+/// `tightscan_core::detectors::sequence`): self-starting CUSUM and L1 sign monitoring after `training`
 /// reference values, each at `alpha` per series.
 #[pyfunction]
 #[pyo3(signature = (values, training=10, alpha=0.05, kappa=0.5, gamma=0.25))]
@@ -105,8 +106,8 @@ fn monitor_series<'py>(
     kappa: f64,
     gamma: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let cfg = tightscan_core::sequence::SequenceConfig { training, alpha, kappa, gamma };
-    let m = detached(py, move || Ok(tightscan_core::sequence::monitor_series(&values, &cfg)?))?;
+    let cfg = tightscan_core::detectors::sequence::SequenceConfig { training, alpha, kappa, gamma };
+    let m = detached(py, move || Ok(tightscan_core::detectors::sequence::monitor_series(&values, &cfg)?))?;
     let d = PyDict::new(py);
     d.set_item("z", m.z)?;
     d.set_item("cusum", m.cusum)?;
@@ -121,7 +122,7 @@ fn monitor_series<'py>(
     Ok(d)
 }
 
-/// Sequential monitoring of a linear regression (`tightscan_core::monitor`): L1 sign residuals
+/// Sequential monitoring of a linear regression (`tightscan_core::detectors::monitor`): L1 sign residuals
 /// (`method="l1"`) or OLS-CUSUM (`method="ols_cusum"`, Horvath et al. 2004), trained on the first
 /// `training` observations, with the boundary c (1 + k/m) (k/(m+k))^gamma. `regressors` are
 /// columns besides the intercept. With `keep_path` the detector and boundary of every monitored
@@ -141,7 +142,7 @@ fn monitor_regression<'py>(
     long_run_variance: bool,
     critical_value: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    use tightscan_core::monitor::{monitor_l1, monitor_ols_cusum, L1MonitorConfig, OlsCusumConfig};
+    use tightscan_core::detectors::monitor::{monitor_l1, monitor_ols_cusum, L1MonitorConfig, OlsCusumConfig};
     let l1 = match method {
         "l1" => true,
         "ols_cusum" => false,
@@ -184,7 +185,7 @@ fn monitor_regression<'py>(
 
 /// Critical value c(alpha, gamma, p) of the monitoring boundary: the shipped table, or with
 /// `simulate` a fresh Monte Carlo value for any (alpha, gamma, p), optionally for a finite
-/// horizon of `horizon_ratio` training lengths (`tightscan_core::critical_values`).
+/// horizon of `horizon_ratio` training lengths (`tightscan_core::detectors::critical_values`).
 #[pyfunction]
 #[pyo3(signature = (alpha, gamma, p=1, simulate=false, repetitions=10_000, grid=256, seed=0, horizon_ratio=None))]
 #[allow(clippy::too_many_arguments)]
@@ -199,7 +200,7 @@ fn monitoring_critical_value(
     seed: u64,
     horizon_ratio: Option<f64>,
 ) -> PyResult<f64> {
-    use tightscan_core::critical_values as cv;
+    use tightscan_core::detectors::critical_values as cv;
     if !simulate {
         if horizon_ratio.is_some() {
             return Err(to_py_err(
@@ -220,7 +221,7 @@ fn monitoring_critical_value(
 /// Column names, types, units and meanings of the result table.
 #[pyfunction]
 fn result_columns() -> Vec<(&'static str, String, &'static str, &'static str)> {
-    tightscan_core::schema::RESULT_COLUMNS
+    tightscan_core::engine::schema::RESULT_COLUMNS
         .iter()
         .map(|(n, t, u, d)| (*n, t.data_type().to_string(), *u, *d))
         .collect()

@@ -125,6 +125,8 @@ pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f
     }
     let mut best: Option<BreakScan> = None;
     let mut best_rss = f64::INFINITY;
+    // k is the split (a prefix length), not only an index into x.
+    #[allow(clippy::needless_range_loop)]
     for k in min_segment..=(n - min_segment) {
         let left = Sums::first(prefix, k);
         let right = total.minus(&left);

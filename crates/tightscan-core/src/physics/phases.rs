@@ -22,8 +22,8 @@
 //!   iteratively reweighted least squares with a MAD scale, so a spike or a short relaxation does
 //!   not tilt the torque rate.
 
-use crate::input::Sample;
-use crate::signal::{ElasticWindow, ElasticZoneConfig, WindowError};
+use crate::sample::Sample;
+use crate::physics::torque_rate::{ElasticWindow, ElasticZoneConfig, WindowError};
 
 /// Phases of one curve. Angles in the unit of the angle channel (deg), torques in Nm.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -16,10 +16,10 @@
 //! - L1 sign monitoring of the location (p = 1, METHODS.md section 3), which needs no scale and
 //!   shrugs off outliers, with the open-ended boundary (conservative for a finite series).
 
-use crate::critical_values::critical_value_any_alpha;
-use crate::cusum::{cusum_threshold, CusumSide, TwoSidedCusum};
+use crate::detectors::critical_values::critical_value_any_alpha;
+use crate::detectors::cusum::{cusum_threshold, CusumSide, TwoSidedCusum};
 use crate::error::{Result, TightscanError};
-use crate::monitor::{monitor_l1, L1MonitorConfig};
+use crate::detectors::monitor::{monitor_l1, L1MonitorConfig};
 
 /// Settings of [`monitor_series`].
 #[derive(Clone, Debug, PartialEq)]

@@ -5,14 +5,14 @@
 //! term at constant joint stiffness (METHODS.md section 1). Production data has torque and angle
 //! only, so the torque rate is the friction signal there.
 //!
-//! The window is found by the phase finder ([`crate::phases::find_phases`]), between two
+//! The window is found by the phase finder ([`crate::physics::phases::find_phases`]), between two
 //! fractions of the rise above the prevailing torque. The window is cut into blocks of equal angle; in each block the torque
 //! rate is a least-squares slope. Disjoint blocks give independent slopes under white noise, and
 //! equal angle (rather than equal sample count) keeps each slope's variance from growing when
 //! the tool slows down near the target (HDT).
 
 use crate::error::{Result, TightscanError};
-use crate::input::Sample;
+use crate::sample::Sample;
 
 /// How the elastic window is found.
 #[derive(Clone, Debug, PartialEq)]
@@ -260,47 +260,6 @@ pub fn block_count(len: usize, cfg: &BlockConfig) -> usize {
     (len / cfg.min_block_samples).min(cfg.max_blocks)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::phases::{find_phases, PhaseScratch, YieldConfig};
-
-    #[test]
-    fn window_of_a_clean_ramp() {
-        // Rundown at 0.1 Nm for 100 samples, then a ramp 0.1 + 0.2 (theta - 100) up to 20 Nm.
-        let angle: Vec<f64> = (0..300).map(|i| i as f64).collect();
-        let torque: Vec<f64> =
-            angle.iter().map(|&a| if a < 100.0 { 0.1 } else { (0.1 + 0.2 * (a - 100.0)).min(40.0) }).collect();
-        let zone = ElasticZoneConfig { start_fraction: 0.3, end_fraction: 0.9, trim_fraction: 0.05, ..ElasticZoneConfig::default() };
-        let w = find_phases(&angle, &torque, &zone, &YieldConfig::default(), &mut PhaseScratch::default()).map(|p| p.window);
-        let w = w.unwrap_or(ElasticWindow { start: 0, end: 0, peak: 0.0 });
-        // peak 39.9 at 299; base 0.1; 30 % level = 12.04 -> first sample >= it is 160; 90 %
-        // level first reached at 280, so the window is 160..=279, trimmed by 5 % of 119 deg.
-        assert_eq!(w.start, 166);
-        assert_eq!(w.end, 274);
-        let mut blocks = Blocks::default();
-        block_stats(&angle, &torque, w, 10, &mut blocks);
-        for b in 0..10 {
-            assert!(blocks.usable(b));
-            assert!((blocks.stats[b].slope() - 0.2).abs() < 1e-12);
-            assert!(blocks.stats[b].rss() < 1e-9);
-        }
-        let mut pooled = PooledFit::default();
-        blocks.stats.iter().for_each(|b| pooled.add(b));
-        assert!((pooled.slope() - 0.2).abs() < 1e-12);
-        assert_eq!(blocks.stats.iter().map(|b| b.n).sum::<usize>(), 108);
-    }
-
-    #[test]
-    fn flat_and_short_curves() {
-        let angle: Vec<f32> = (0..50).map(|i| i as f32).collect();
-        let flat = vec![1.0f32; 50];
-        let phases = |t: &[f32]| find_phases(&angle, t, &ElasticZoneConfig::default(), &YieldConfig::default(), &mut PhaseScratch::default()).map(|p| p.window);
-        assert_eq!(phases(&flat), Err(WindowError::FlatTorque));
-        let step: Vec<f32> = (0..50).map(|i| if i < 45 { 0.0 } else { 1.0 }).collect();
-        assert!(matches!(phases(&step), Err(WindowError::TooShort(_))));
-    }
-}
 
 /// Angle ranges, relative to the window start, to leave out of the friction signal because the
 /// tool stopped there (a CSDT pause). At standstill the torque relaxes; after the restart it is
@@ -340,5 +299,47 @@ pub fn stop_ranges<A: Sample, T: Sample>(angle: &[A], torque: &[T], window: Elas
             out.push((angle[i].to_f64() - a0, angle[k.min(end - 1)].to_f64() - a0));
         }
         i = j;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physics::phases::{find_phases, PhaseScratch, YieldConfig};
+
+    #[test]
+    fn window_of_a_clean_ramp() {
+        // Rundown at 0.1 Nm for 100 samples, then a ramp 0.1 + 0.2 (theta - 100) up to 20 Nm.
+        let angle: Vec<f64> = (0..300).map(|i| i as f64).collect();
+        let torque: Vec<f64> =
+            angle.iter().map(|&a| if a < 100.0 { 0.1 } else { (0.1 + 0.2 * (a - 100.0)).min(40.0) }).collect();
+        let zone = ElasticZoneConfig { start_fraction: 0.3, end_fraction: 0.9, trim_fraction: 0.05, ..ElasticZoneConfig::default() };
+        let w = find_phases(&angle, &torque, &zone, &YieldConfig::default(), &mut PhaseScratch::default()).map(|p| p.window);
+        let w = w.unwrap_or(ElasticWindow { start: 0, end: 0, peak: 0.0 });
+        // peak 39.9 at 299; base 0.1; 30 % level = 12.04 -> first sample >= it is 160; 90 %
+        // level first reached at 280, so the window is 160..=279, trimmed by 5 % of 119 deg.
+        assert_eq!(w.start, 166);
+        assert_eq!(w.end, 274);
+        let mut blocks = Blocks::default();
+        block_stats(&angle, &torque, w, 10, &mut blocks);
+        for b in 0..10 {
+            assert!(blocks.usable(b));
+            assert!((blocks.stats[b].slope() - 0.2).abs() < 1e-12);
+            assert!(blocks.stats[b].rss() < 1e-9);
+        }
+        let mut pooled = PooledFit::default();
+        blocks.stats.iter().for_each(|b| pooled.add(b));
+        assert!((pooled.slope() - 0.2).abs() < 1e-12);
+        assert_eq!(blocks.stats.iter().map(|b| b.n).sum::<usize>(), 108);
+    }
+
+    #[test]
+    fn flat_and_short_curves() {
+        let angle: Vec<f32> = (0..50).map(|i| i as f32).collect();
+        let flat = vec![1.0f32; 50];
+        let phases = |t: &[f32]| find_phases(&angle, t, &ElasticZoneConfig::default(), &YieldConfig::default(), &mut PhaseScratch::default()).map(|p| p.window);
+        assert_eq!(phases(&flat), Err(WindowError::FlatTorque));
+        let step: Vec<f32> = (0..50).map(|i| if i < 45 { 0.0 } else { 1.0 }).collect();
+        assert!(matches!(phases(&step), Err(WindowError::TooShort(_))));
     }
 }

@@ -1,4 +1,4 @@
-//! Critical values c(alpha, gamma, p) of the sequential monitors in [`crate::monitor`]
+//! Critical values c(alpha, gamma, p) of the sequential monitors in [`crate::detectors::monitor`]
 //! (METHODS.md section 3): the (1 - alpha)-quantile of
 //!
 //! ```text
@@ -31,7 +31,7 @@
 //!
 //! Only the maximum between grid points is still missed. Its bias is 0.5826 sigma sqrt(d) to
 //! first order (Asmussen, Glynn and Pitman 1995; 0.5826 = -zeta(1/2)/sqrt(2 pi), the constant
-//! of Siegmund's overshoot in [`crate::cusum`]), and both U and the radial part of a
+//! of Siegmund's overshoot in [`crate::detectors::cusum`]), and both U and the radial part of a
 //! p-dimensional Brownian motion have unit diffusion coefficient. The bias correction used is
 //! the continuity correction of Broadie, Glasserman and Kou (1997), the first-order form of the
 //! Brownian-bridge crossing correction: 0.5826 sqrt(d) is added to ||U(u_j)|| at every grid

@@ -16,25 +16,8 @@ use arrow_schema::{DataType, Field, Schema};
 use arrow_select::take::take;
 
 use crate::error::{Result, TightscanError};
-use crate::schema::{self, Layout, CHANNELS, TIGHTENING_ID};
-
-/// A number type a channel can hold.
-pub trait Sample: Copy + Send + Sync + 'static {
-    /// Widens to `f64` for arithmetic.
-    fn to_f64(self) -> f64;
-}
-impl Sample for f32 {
-    #[inline(always)]
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-}
-impl Sample for f64 {
-    #[inline(always)]
-    fn to_f64(self) -> f64 {
-        self
-    }
-}
+use crate::engine::schema::{self, Layout, CHANNELS, TIGHTENING_ID};
+pub use crate::sample::Sample;
 
 /// Samples of one channel of one tightening, borrowed from the Arrow buffer.
 #[derive(Clone, Copy, Debug)]
@@ -106,8 +89,8 @@ pub enum ChannelRow<'a> {
 impl<'a> ChannelColumn<'a> {
     fn from_array(name: &'static str, array: &'a dyn Array) -> Result<Self> {
         match array.data_type() {
-            DataType::List(_) => Self::from_list(name, array.as_list::<i32>(), |o| Offsets::I32(o)),
-            DataType::LargeList(_) => Self::from_list(name, array.as_list::<i64>(), |o| Offsets::I64(o)),
+            DataType::List(_) => Self::from_list(name, array.as_list::<i32>(), Offsets::I32),
+            DataType::LargeList(_) => Self::from_list(name, array.as_list::<i64>(), Offsets::I64),
             other => Err(TightscanError::schema(name, format!("expected a list column, got {other}"))),
         }
     }

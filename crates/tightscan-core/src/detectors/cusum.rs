@@ -427,7 +427,7 @@ mod tests {
 
     /// spc::xcusum.arl fixtures (tests/oracles/make_oracles.R): kappa, h, mu, two-sided, ARL.
     fn spc_fixture() -> Vec<(f64, f64, f64, bool, f64)> {
-        include_str!("../../../tests/oracles/spc_xcusum_arl.csv")
+        include_str!("../../../../tests/oracles/spc_xcusum_arl.csv")
             .lines()
             .filter(|l| !l.starts_with('#') && !l.starts_with("kappa"))
             .map(|l| {

@@ -1,0 +1,68 @@
+//! The residual step: the classical k-sigma chart and the kernel-density (L2 / MMD) test on the
+//! residuals of the robust elastic line (METHODS.md section 4).
+
+use crate::detectors::kde::{kde_change_test, KdeTestConfig, KdeWindow};
+use crate::detectors::shewhart::shewhart_scan;
+use crate::engine::input::Sample;
+use crate::engine::rows::{KdeRow, ResidualRow};
+use crate::engine::Detector;
+use crate::physics::phases::{robust_line, Line};
+
+use super::Scratch;
+
+impl Detector {
+    /// Tests on the residuals of the robust elastic line (the phase finder's, in the same window
+    /// coordinates) over the samples the break scan used (`s.x`, `s.y`, `s.index`): the k-sigma
+    /// chart always, the kernel-density test when enabled. The line is fitted to the whole
+    /// window, so under no change the residuals are nearly exchangeable, which the permutation
+    /// test needs; a change leaves residuals whose level or spread differs before and after it.
+    pub(super) fn residual_row<A: Sample>(&self, angle: &[A], line: &Line, row: usize, s: &mut Scratch) -> Option<ResidualRow> {
+        let cfg = &self.config.residual_tests;
+        // The phase finder's line is fitted to every window sample. Where the window holds a
+        // stop (a CSDT pause: relaxation at standstill, then the wind-up), those samples pull it
+        // off the elastic line, and the residuals of the samples tested here (the stop left out)
+        // would carry that bias as structure: the kernel-density test alarmed on half of the
+        // clean CSDT curves. Refit on the samples tested then.
+        let refit;
+        let line = if s.stops.is_empty() {
+            line
+        } else {
+            refit = robust_line(&s.x, &s.y, &mut s.bits)?;
+            &refit
+        };
+        s.line_residuals.clear();
+        s.line_residuals.extend(s.x.iter().zip(&s.y).map(|(x, y)| y - line.intercept - line.slope * x));
+        let n = s.line_residuals.len();
+        let training = ((cfg.training_fraction * n as f64).round() as usize).max(2);
+        let chart = shewhart_scan(&s.line_residuals, training, cfg.shewhart_k).ok()?;
+        let at = |k: usize| (s.index[k], angle[s.index[k]].to_f64());
+        let mut out = ResidualRow {
+            shewhart_alarm: chart.alarm_index.is_some(),
+            shewhart_max_abs_z: chart.max_abs_z,
+            shewhart_alarm_index: chart.alarm_index.map(|k| at(k).0),
+            shewhart_alarm_angle: chart.alarm_index.map(|k| at(k).1),
+            kde: None,
+        };
+        if cfg.kde {
+            // Sliding windows as wide as the reference: twice the power of a growing window for
+            // a change in mid-window (detectors/kde tests), at the same exact size.
+            let test = KdeTestConfig {
+                alpha: self.kde_alpha,
+                permutations: cfg.kde_permutations,
+                window: KdeWindow::Sliding { width: training.max(20) },
+                seed: cfg.kde_seed.wrapping_add(row as u64),
+                ..KdeTestConfig::default()
+            };
+            if let Ok(k) = kde_change_test(&s.line_residuals, training, &test) {
+                out.kde = Some(KdeRow {
+                    alarm: k.alarm,
+                    statistic: k.statistic,
+                    p_value: k.p_value,
+                    change_index: k.change_start.map(|c| at(c).0),
+                    change_angle: k.change_start.map(|c| at(c).1),
+                });
+            }
+        }
+        Some(out)
+    }
+}

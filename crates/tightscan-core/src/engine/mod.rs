@@ -1,0 +1,270 @@
+//! The batch engine: one result row per input tightening, in input order, computed in parallel.
+//!
+//! Arrow in ([`input`] views the channels where they lie, [`schema`] says what they may be),
+//! one [`analysis`] per tightening across rayon's threads, the [`decision`] rule over the
+//! detectors that ran, a [`status`] for every row, and Arrow out ([`columns`], in the order of
+//! the one table of result columns, [`schema::RESULT_COLUMNS`]).
+
+mod analysis;
+pub mod columns;
+pub mod config;
+pub mod decision;
+pub mod input;
+mod rows;
+pub mod schema;
+pub mod status;
+#[cfg(test)]
+mod tests;
+
+use std::sync::Arc;
+
+use arrow_array::{Array, ArrayRef, Int64Array, RecordBatch};
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+use arrow_select::concat::concat_batches;
+use rayon::prelude::*;
+
+use crate::detectors::critical_values::critical_value_any_alpha;
+use crate::detectors::cusum::cusum_threshold;
+use crate::error::{Result, TightscanError};
+use crate::physics::thread::parse_thread;
+use analysis::Scratch;
+use columns::{build_columns, passthrough_fields};
+use input::{to_nested, TighteningTable};
+use rows::RowResult;
+use schema::{Layout, TIGHTENING_ID};
+use status::TighteningStatus;
+
+pub use config::{BreakConfig, CusumConfig, DetectConfig, FrictionConfig, L1Config, ResidualTestConfig};
+pub use decision::{DecisionConfig, DecisionRule, DetectorKind, DECISION_CALIBRATION};
+
+/// Validated configuration plus the threshold it implies.
+#[derive(Clone, Debug)]
+pub struct Detector {
+    config: DetectConfig,
+    threshold: f64,
+    break_alpha: f64,
+    l1_alpha: f64,
+    l1_critical_value: f64,
+    kde_alpha: f64,
+}
+
+impl Detector {
+    /// Validates `config` and derives the CUSUM threshold.
+    pub fn new(config: DetectConfig) -> Result<Self> {
+        config.zone.validate()?;
+        config.blocks.validate()?;
+        let c = &config.cusum;
+        if !(c.kappa.is_finite() && c.kappa >= 0.0) {
+            return Err(TightscanError::parameter("kappa", format!("must be >= 0, got {}", c.kappa)));
+        }
+        let f = &config.friction;
+        for (name, v) in [("pitch_mm", f.pitch_mm), ("d2_mm", f.d2_mm), ("dkm_mm", f.dkm_mm), ("joint_stiffness", f.joint_stiffness)] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(TightscanError::parameter(name, format!("must be > 0, got {v}")));
+                }
+            }
+        }
+        if let Some(t) = &f.thread {
+            if parse_thread(t).is_none() && !(f.pitch_mm.is_some() && f.d2_mm.is_some() && f.dkm_mm.is_some()) {
+                return Err(TightscanError::parameter(
+                    "thread",
+                    format!("{t:?} is not in the ISO thread table (M3-M24); give pitch_mm, d2_mm and dkm_mm"),
+                ));
+            }
+        }
+        let y = config.yield_zone.gradient_fraction;
+        if !(y > 0.0 && y < 1.0) {
+            return Err(TightscanError::parameter("yield_gradient_fraction", format!("must be in (0, 1), got {y}")));
+        }
+        let r = &config.residual_tests;
+        if !(r.training_fraction > 0.0 && r.training_fraction < 1.0) {
+            return Err(TightscanError::parameter("residual_training_fraction", format!("must be in (0, 1), got {}", r.training_fraction)));
+        }
+        let d = &config.decision;
+        if !(d.alpha > 0.0 && d.alpha < 0.5) {
+            return Err(TightscanError::parameter("alpha", format!("must be in (0, 0.5), got {}", d.alpha)));
+        }
+        if d.detectors.is_empty() {
+            return Err(TightscanError::parameter("detectors", "the decision rule needs at least one detector"));
+        }
+        if d.detectors.contains(&DetectorKind::Kde) && !r.kde {
+            return Err(TightscanError::parameter("detectors", "'kde' in the rule needs kde=True"));
+        }
+        match &d.rule {
+            DecisionRule::AtLeast(k) if *k == 0 || *k > d.detectors.len() => {
+                return Err(TightscanError::parameter(
+                    "rule",
+                    format!("at least {k} of {} detectors cannot be asked", d.detectors.len()),
+                ));
+            }
+            DecisionRule::Table(rows) => {
+                if rows.is_empty() {
+                    return Err(TightscanError::parameter("rule", "the response table has no rows"));
+                }
+                for (i, row) in rows.iter().enumerate() {
+                    if !row.iter().any(|&(_, fires)| fires) {
+                        return Err(TightscanError::parameter(
+                            "rule",
+                            format!("row {i} of the response table requires no detector to fire: it would alarm on clean curves"),
+                        ));
+                    }
+                    for (j, &(kind, _)) in row.iter().enumerate() {
+                        if !d.detectors.contains(&kind) {
+                            return Err(TightscanError::parameter(
+                                "rule",
+                                format!("row {i} of the response table names '{}', which is not in detectors", kind.as_str()),
+                            ));
+                        }
+                        if row[..j].iter().any(|&(k, _)| k == kind) {
+                            return Err(TightscanError::parameter(
+                                "rule",
+                                format!("row {i} of the response table names '{}' twice", kind.as_str()),
+                            ));
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+        let kde_alpha = r.kde_alpha.unwrap_or_else(|| d.share(DetectorKind::Kde));
+        if !(kde_alpha > 0.0 && kde_alpha < 1.0) {
+            return Err(TightscanError::parameter("kde_alpha", format!("must be in (0, 1), got {kde_alpha}")));
+        }
+        if r.kde && (r.kde_permutations as f64 + 1.0) * kde_alpha < 1.0 {
+            return Err(TightscanError::parameter(
+                "kde_permutations",
+                format!(
+                    "{} permutations cannot give a p-value at or below kde_alpha = {kde_alpha}; use at least {}",
+                    r.kde_permutations,
+                    (1.0 / kde_alpha).ceil() as usize
+                ),
+            ));
+        }
+        if !(r.shewhart_k.is_finite() && r.shewhart_k > 0.0) {
+            return Err(TightscanError::parameter("shewhart_k", format!("must be > 0, got {}", r.shewhart_k)));
+        }
+        let break_alpha = config.breaks.alpha.unwrap_or_else(|| d.share(DetectorKind::Break));
+        let tail_fraction = config.breaks.tail_fraction;
+        if !(0.0..1.0).contains(&tail_fraction) {
+            return Err(TightscanError::parameter("break_tail_fraction", format!("must be in [0, 1), got {tail_fraction}")));
+        }
+        let scan_alpha = break_alpha * (1.0 - tail_fraction);
+        if !(break_alpha <= 0.5 && scan_alpha >= 0.001) {
+            return Err(TightscanError::parameter(
+                "break_alpha",
+                format!(
+                    "must be at most 0.5, and its scan share (1 - break_tail_fraction) at least 0.001 (the shipped table); \
+                     got {break_alpha}, scan share {scan_alpha}; raise alpha or give break_alpha"
+                ),
+            ));
+        }
+        let l1_alpha = config.l1.alpha.unwrap_or_else(|| d.share(DetectorKind::L1));
+        // A location (the block torque rate): p = 1.
+        let l1_critical_value = critical_value_any_alpha(l1_alpha, config.l1.gamma, 1).map_err(|e| match e {
+            TightscanError::InvalidParameter { name, message } if name == "alpha" => {
+                TightscanError::parameter("l1_alpha", message)
+            }
+            TightscanError::InvalidParameter { name, message } if name == "gamma" => {
+                TightscanError::parameter("l1_gamma", message)
+            }
+            other => other,
+        })?;
+        let threshold = match (c.threshold, c.arl0) {
+            (Some(h), _) if h.is_finite() && h > 0.0 => h,
+            (Some(h), _) => return Err(TightscanError::parameter("threshold", format!("must be > 0, got {h}"))),
+            (None, Some(arl0)) => cusum_threshold(arl0, c.kappa, true)?,
+            (None, None) => {
+                let monitored = config.blocks.max_blocks as f64 * (1.0 - config.blocks.training_fraction);
+                cusum_threshold(monitored / d.share(DetectorKind::Cusum), c.kappa, true)?
+            }
+        };
+        Ok(Self { config, threshold, break_alpha, l1_alpha, l1_critical_value, kde_alpha })
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &DetectConfig {
+        &self.config
+    }
+
+    /// CUSUM threshold h in sigma units.
+    pub fn threshold(&self) -> f64 {
+        self.threshold
+    }
+
+    /// Schema of the results for an input schema.
+    pub fn result_schema(&self, input: &Schema, passthrough: &[String]) -> Result<SchemaRef> {
+        schema::detect_layout(input)?;
+        let id = match input.field_with_name(TIGHTENING_ID) {
+            Ok(f) => f.clone(),
+            Err(_) => Field::new(TIGHTENING_ID, DataType::Int64, false),
+        };
+        let pass = passthrough_fields(input, passthrough)?;
+        Ok(schema::result_schema(id, &pass))
+    }
+
+    /// Analyses every tightening of `batch` (nested or long layout). `first_row` numbers the
+    /// rows when the table has no `tightening_id` (row numbers continue across batches).
+    pub fn detect(&self, batch: &RecordBatch, passthrough: &[String], first_row: i64) -> Result<RecordBatch> {
+        let input_schema = batch.schema();
+        let layout = schema::detect_layout(&input_schema)?;
+        let out_schema = self.result_schema(&input_schema, passthrough)?;
+        let nested = to_nested(batch, passthrough)?;
+        let table = TighteningTable::new(&nested)?;
+        let ids: ArrayRef = match nested.column_by_name(TIGHTENING_ID) {
+            Some(ids) => ids.clone(),
+            None => Arc::new(Int64Array::from_iter_values(first_row..first_row + nested.num_rows() as i64)),
+        };
+        // In the long layout a null id gathers samples of unknown tightenings: not a curve.
+        let null_id_row = |i: usize| layout == Layout::Long && ids.is_null(i);
+
+        let rows: Vec<RowResult> = (0..table.n_rows)
+            .into_par_iter()
+            .with_min_len(16)
+            .map_init(Scratch::default, |scratch, i| {
+                if null_id_row(i) {
+                    return RowResult::failed(TighteningStatus::NullTightening, 0);
+                }
+                let mut row = self.analyse_row(&table, i, scratch);
+                row.decision = self.decide(&row);
+                self.settle_status(&mut row);
+                row
+            })
+            .collect();
+
+        let mut columns: Vec<ArrayRef> = Vec::with_capacity(out_schema.fields().len());
+        columns.push(ids);
+        columns.extend(build_columns(&rows));
+        for name in passthrough {
+            let col = nested
+                .column_by_name(name)
+                .ok_or_else(|| TightscanError::schema(name.as_str(), "pass-through column is missing"))?;
+            columns.push(col.clone());
+        }
+        Ok(RecordBatch::try_new(out_schema, columns)?)
+    }
+
+    /// Analyses a whole table given as batches. A long-layout table is concatenated first, so
+    /// that a tightening whose samples span batches still gives exactly one row.
+    pub fn detect_all(
+        &self,
+        input_schema: &SchemaRef,
+        batches: &[RecordBatch],
+        passthrough: &[String],
+        first_row: i64,
+    ) -> Result<Vec<RecordBatch>> {
+        if schema::detect_layout(input_schema)? == Layout::Long && batches.len() > 1 {
+            let all = concat_batches(input_schema, batches)?;
+            return Ok(vec![self.detect(&all, passthrough, first_row)?]);
+        }
+        let mut row = first_row;
+        batches
+            .iter()
+            .map(|b| {
+                let out = self.detect(b, passthrough, row);
+                row += b.num_rows() as i64;
+                out
+            })
+            .collect()
+    }
+}

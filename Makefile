@@ -14,6 +14,7 @@ demo: $(VENV)/.built
 	$(VENV)/bin/tightscan demo
 
 test: $(VENV)/.built
+	cargo clippy --workspace --all-targets --quiet -- -D warnings
 	cargo test --workspace --exclude tightscan-python --all-targets
 	$(PY) -m pytest
 	$(PY) -m mypy python/tightscan

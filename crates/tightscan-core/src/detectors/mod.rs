@@ -8,5 +8,6 @@ pub mod critical_values;
 pub mod cusum;
 pub mod kde;
 pub mod monitor;
+pub mod noise;
 pub mod sequence;
 pub mod shewhart;

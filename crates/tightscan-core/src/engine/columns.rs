@@ -64,6 +64,7 @@ pub(super) fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         f(|r| r.friction.map(|p| p.mu_tot)),
         f(|r| r.friction.map(|p| p.nut_factor)),
         mu_source,
+        f(|r| r.noise_lag1),
         b(|r| r.cusum.as_ref().map(|c| c.alarm.is_some())),
         i(|r| r.alarm().map(|a| a.alarm_index as i64)),
         f(|r| r.alarm().map(|a| a.alarm_angle)),

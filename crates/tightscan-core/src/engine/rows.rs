@@ -14,6 +14,8 @@ pub(super) struct RowResult {
     pub(super) window: Option<(f64, f64)>,
     pub(super) phases: Option<PhaseRow>,
     pub(super) friction: Option<FrictionEstimate>,
+    /// Lag-1 autocorrelation of the window's noise model.
+    pub(super) noise_lag1: Option<f64>,
     pub(super) breaks: Option<BreakRow>,
     pub(super) residual: Option<ResidualRow>,
     pub(super) l1: Option<L1Row>,
@@ -67,6 +69,10 @@ pub(super) struct BreakRow {
     pub(super) change_index: usize,
     pub(super) change_angle: f64,
     pub(super) jump: f64,
+    /// Two-sided p-value of the window's curvature, and whether a quadratic fits it at least
+    /// as well as the best break (see `break_row`).
+    pub(super) curvature_p_value: Option<f64>,
+    pub(super) smooth_fits_better: bool,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -109,6 +115,7 @@ impl RowResult {
             window: None,
             phases: None,
             friction: None,
+            noise_lag1: None,
             breaks: None,
             residual: None,
             l1: None,

@@ -51,6 +51,12 @@ pub enum TighteningStatus {
         /// Channel that is constant.
         channel: &'static str,
     },
+    /// The null model of the window (a straight elastic line) does not fit, and a smooth curve
+    /// explains the window better than any break: a change cannot be told from the misfit.
+    ModelMisfit {
+        /// Two-sided p-value of the curvature (quadratic term) of the whitened window.
+        curvature_p_value: f64,
+    },
     /// Clamp force or joint stiffness is given, so `mu_tot` is asked for, but the thread is not
     /// in the table and no `pitch_mm`/`d2_mm`/`dkm_mm` replace it.
     UnknownThread {
@@ -77,6 +83,7 @@ impl TighteningStatus {
             Self::TooShort { .. } => "too_short",
             Self::FlatSignal { .. } => "flat_signal",
             Self::NoElasticZone { .. } => "no_elastic_zone",
+            Self::ModelMisfit { .. } => "model_misfit",
             Self::UnknownThread { .. } => "unknown_thread",
         }
     }
@@ -109,6 +116,11 @@ impl fmt::Display for TighteningStatus {
             }
             Self::FlatSignal { channel } => write!(f, "{code}: {channel} does not vary"),
             Self::NoElasticZone { reason } => write!(f, "{code}: {reason}"),
+            Self::ModelMisfit { curvature_p_value } => write!(
+                f,
+                "{code}: the elastic window is curved (curvature p = {curvature_p_value:.1e}) and a smooth curve fits it \
+                 better than any break; no change is claimed"
+            ),
             Self::UnknownThread { designation } => write!(
                 f,
                 "{code}: {designation:?} is not an ISO metric thread of the table (M3-M24, coarse and \

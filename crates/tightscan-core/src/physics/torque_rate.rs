@@ -207,6 +207,9 @@ pub struct Blocks {
     pub stats: Vec<BlockStats>,
     /// Width of a block [deg].
     pub width: f64,
+    /// Scale of the regressor against angle: 1 for angle itself, the whitening filter's gain
+    /// at low frequency for whitened samples (see [`block_stats_whitened`]).
+    pub regressor_scale: f64,
 }
 
 impl Blocks {
@@ -214,7 +217,7 @@ impl Blocks {
     pub fn usable(&self, b: usize) -> bool {
         let s = &self.stats[b];
         // A block whose angles barely differ has no slope; the relative floor absorbs rounding.
-        s.n >= 3 && s.sxx_c() > 1e-9 * self.width * self.width
+        s.n >= 3 && s.sxx_c() > 1e-9 * (self.width * self.regressor_scale).powi(2)
     }
 }
 
@@ -231,6 +234,7 @@ pub fn block_stats<A: Sample, T: Sample>(
     let span = angle[window.end - 1].to_f64() - a0;
     let width = span / n_blocks as f64;
     out.width = width;
+    out.regressor_scale = 1.0;
     out.stats.clear();
     out.stats.extend((0..n_blocks).map(|b| BlockStats {
         first: usize::MAX,
@@ -252,6 +256,65 @@ pub fn block_stats<A: Sample, T: Sample>(
         s.sxx += xl * xl;
         s.sxy += xl * y;
         s.syy += y * y;
+    }
+}
+
+/// Blocks of equal angle over samples whose regression was whitened: `position` (the recorded
+/// angle, relative to the window start, increasing) says which block a sample falls in, and each
+/// block's sums are those of the whitened torque `y` on the whitened regressor `x`
+/// ([`crate::detectors::noise`]). Blocks span `position[0]` to its last value; `first` and
+/// `last` index these slices; offsets are 0 (the sums are of `x` itself). `gain` is the
+/// whitening filter's gain at low frequency, 1 - sum phi_j.
+pub fn block_stats_whitened(position: &[f64], x: &[f64], y: &[f64], n_blocks: usize, gain: f64, out: &mut Blocks) {
+    let lo = position[0];
+    let span = position[position.len() - 1] - lo;
+    let width = span / n_blocks as f64;
+    out.width = width;
+    out.regressor_scale = gain.abs().max(f64::MIN_POSITIVE);
+    out.stats.clear();
+    out.stats.extend((0..n_blocks).map(|_| BlockStats { first: usize::MAX, ..BlockStats::default() }));
+    let inv = 1.0 / width;
+    for (i, ((&p, &xi), &yi)) in position.iter().zip(x).zip(y).enumerate() {
+        let b = (((p - lo) * inv) as isize).clamp(0, n_blocks as isize - 1) as usize;
+        let s = &mut out.stats[b];
+        s.n += 1;
+        s.first = s.first.min(i);
+        s.last = s.last.max(i);
+        s.sx += xi;
+        s.sy += yi;
+        s.sxx += xi * xi;
+        s.sxy += xi * yi;
+        s.syy += yi * yi;
+    }
+}
+
+/// Encoder resolution of an angle series (relative, sorted non-decreasing within runs): the
+/// smallest positive difference between consecutive samples, when angles repeat or step by
+/// it often enough to be a grid (a quarter of the steps at most twice it); 0 for unquantised
+/// angles.
+pub fn encoder_resolution(x: &[f64]) -> f64 {
+    let mut smallest = f64::INFINITY;
+    for w in x.windows(2) {
+        let d = w[1] - w[0];
+        if d > 1e-9 && d < smallest {
+            smallest = d;
+        }
+    }
+    if !smallest.is_finite() {
+        return 0.0;
+    }
+    // A grid: most steps are whole multiples of the smallest one.
+    let on_grid = x
+        .windows(2)
+        .filter(|w| {
+            let q = (w[1] - w[0]) / smallest;
+            (q - q.round()).abs() < 0.05
+        })
+        .count();
+    if on_grid * 10 >= 9 * (x.len() - 1) {
+        smallest
+    } else {
+        0.0
     }
 }
 

@@ -5,73 +5,49 @@
 use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_p_value, sup_lr_scan, tail_test};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
+use crate::physics::torque_rate::encoder_resolution;
 use crate::engine::Detector;
-use crate::physics::torque_rate::ElasticWindow;
 
 use super::Scratch;
 
-/// Encoder resolution of an angle series (relative, sorted non-decreasing within runs): the
-/// smallest positive difference between consecutive samples, when angles repeat or step by
-/// it often enough to be a grid (a quarter of the steps at most twice it); 0 for unquantised
-/// angles.
-fn angle_resolution(x: &[f64]) -> f64 {
-    let mut smallest = f64::INFINITY;
-    for w in x.windows(2) {
-        let d = w[1] - w[0];
-        if d > 1e-9 && d < smallest {
-            smallest = d;
-        }
+/// Intercept and slope of the least-squares line through `x`, `y` (slope 0 when `x` is flat).
+fn line(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = x.len() as f64;
+    let mx = x.iter().sum::<f64>() / n;
+    let my = y.iter().sum::<f64>() / n;
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (xi, yi) in x.iter().zip(y) {
+        sxx += (xi - mx) * (xi - mx);
+        sxy += (xi - mx) * (yi - my);
     }
-    if !smallest.is_finite() {
-        return 0.0;
-    }
-    // A grid: most steps are whole multiples of the smallest one.
-    let on_grid = x
-        .windows(2)
-        .filter(|w| {
-            let q = (w[1] - w[0]) / smallest;
-            (q - q.round()).abs() < 0.05
-        })
-        .count();
-    if on_grid * 10 >= 9 * (x.len() - 1) {
-        smallest
-    } else {
-        0.0
-    }
+    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    (my - b * mx, b)
 }
 
 impl Detector {
-    /// sup-LR scan over the window's samples, leaving out those in a stop range (a CSDT pause:
-    /// relaxation at standstill and the wind-up after it are not friction), and the end test
-    /// over the window's last samples plus those between its end and the peak (`tail_end`,
-    /// the peak's index; `None` when the curve yields, whose end is bent on purpose).
-    pub(super) fn break_row<A: Sample, T: Sample>(
-        &self,
-        angle: &[A],
-        torque: &[T],
-        window: ElasticWindow,
-        tail_end: Option<usize>,
-        s: &mut Scratch,
-    ) -> Option<BreakRow> {
-        let a0 = angle[window.start].to_f64();
-        let t0 = torque[window.start].to_f64();
-        s.x.clear();
-        s.y.clear();
-        s.index.clear();
-        let outside_stops = |x: f64, stops: &[(f64, f64)]| !stops.iter().any(|&(lo, hi)| x >= lo && x <= hi);
-        for i in window.start..window.end {
-            let x = angle[i].to_f64() - a0;
-            if outside_stops(x, &s.stops) {
-                s.x.push(x);
-                s.y.push(torque[i].to_f64() - t0);
-                s.index.push(i);
-            }
+    /// sup-LR scan over the window's whitened samples (stops left out, see
+    /// [`Scratch::window_samples`]), and the end test over the window's last samples plus those
+    /// between its end and the peak. The statistics come from the whitened line, whose errors
+    /// are independent; the jump they report, and the encoder-step check on it, are in torque
+    /// units, from the recorded samples either side of the split.
+    pub(super) fn break_row<A: Sample>(&self, angle: &[A], s: &mut Scratch) -> Option<BreakRow> {
+        let lag = s.lag;
+        let n = s.n_window;
+        if n <= lag {
+            return None;
         }
-        let n = s.x.len();
-        let scan = sup_lr_scan(&s.x, &s.y, min_segment(n), &mut s.prefix)?;
+        let (wx, wy) = (&s.wx[lag..], &s.wy[lag..]);
+        let nw = n - lag;
+        let scan = sup_lr_scan(&wx[..nw], &wy[..nw], min_segment(nw), &mut s.prefix)?;
         let breaks = &self.config.breaks;
         let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction);
-        let critical_value = sup_lr_critical_value(n, scan_alpha).ok()?;
+        let critical_value = sup_lr_critical_value(nw, scan_alpha).ok()?;
+        let (x, y) = (&s.x[..n], &s.y[..n]);
+        let split = scan.split + lag;
+        let xs = &s.xs[..n];
+        let (al, bl) = line(&xs[..split], &y[..split]);
+        let (ar, br) = line(&xs[split..], &y[split..]);
+        let scan_jump = (ar + br * xs[split]) - (al + bl * xs[split]);
         // Angle quantisation: where the angle advanced per sample is close to a multiple of the
         // encoder resolution r, the quantisation error drifts slowly and wraps by r, which is a
         // torque step of G r against the recorded angle (G the torque rate): one encoder step.
@@ -79,51 +55,98 @@ impl Detector {
         // clean curves with p <= 0.001 in 20,000 had |jump| = 0.75-1.9 G r). A break is only
         // credited when its jump exceeds `min_jump_steps` encoder steps (default 1.5), or when
         // it is large enough (twice the critical value) that a step cannot explain it.
-        let resolution = angle_resolution(&s.x);
-        let (dx, dy) = (s.x[n - 1] - s.x[0], s.y[n - 1] - s.y[0]);
+        let resolution = encoder_resolution(x);
+        let (dx, dy) = (x[n - 1] - x[0], y[n - 1] - y[0]);
         let encoder_step = if dx > 0.0 { (dy / dx).abs() * resolution } else { 0.0 };
         let beyond_step = |jump: f64| encoder_step <= 0.0 || jump.abs() > breaks.min_jump_steps * encoder_step;
-        let scan_alarm = scan.statistic > critical_value && (beyond_step(scan.jump) || scan.statistic > 2.0 * critical_value);
+        let scan_alarm = scan.statistic > critical_value && (beyond_step(scan_jump) || scan.statistic > 2.0 * critical_value);
 
         // End test: every tail the scan cannot isolate (shorter than its minimum segment), up to
-        // the peak. The samples past the window are appended for the test and removed again:
-        // the residual tests and L1 use the window alone.
+        // the peak (the samples past the window, which only this test uses).
         let tail = if breaks.tail_fraction > 0.0 {
-            if let Some(end) = tail_end {
-                for i in window.end..=end.min(angle.len() - 1) {
-                    let x = angle[i].to_f64() - a0;
-                    if outside_stops(x, &s.stops) {
-                        s.x.push(x);
-                        s.y.push(torque[i].to_f64() - t0);
-                        s.index.push(i);
-                    }
-                }
-            }
             let extra = s.x.len() - n;
-            let t = tail_test(&s.x, &s.y, min_segment(n) - 1 + extra, &mut s.prefix).map(|t| (t, s.index[t.start]));
-            s.x.truncate(n);
-            s.y.truncate(n);
-            s.index.truncate(n);
-            t
+            tail_test(wx, wy, min_segment(nw) - 1 + extra, &mut s.prefix).map(|t| {
+                let start = t.start + lag;
+                let (a, b) = line(&s.xs[..start], &s.y[..start]);
+                let tail_len = (s.xs.len() - start) as f64;
+                let deviation = s.xs[start..].iter().zip(&s.y[start..]).map(|(xi, yi)| yi - a - b * xi).sum::<f64>() / tail_len;
+                (t, s.index[start], deviation)
+            })
         } else {
             None
         };
         let tail_alpha = self.break_alpha * breaks.tail_fraction;
-        let tail_alarm = tail.is_some_and(|(t, _)| t.p_value <= tail_alpha && (beyond_step(t.deviation) || t.p_value <= 0.01 * tail_alpha));
+        let tail_alarm = tail.is_some_and(|(t, _, dev)| t.p_value <= tail_alpha && (beyond_step(dev) || t.p_value <= 0.01 * tail_alpha));
 
+        let (curvature_p_value, smooth_fits_better) = match curvature(&s.xs[..n], wx, &wy[..nw], &s.noise.coefficients, &mut s.line_residuals) {
+            Some((p, rss_quad)) => {
+                let rss_break = line_rss(&wx[..nw], &wy[..nw]) * (-scan.statistic / nw as f64).exp();
+                (Some(p), rss_quad <= rss_break)
+            }
+            None => (None, false),
+        };
         let (change_index, jump) = match tail {
-            Some((t, at)) if tail_alarm && !scan_alarm => (at, t.deviation),
-            _ => (s.index[scan.split], scan.jump),
+            Some((_, at, dev)) if tail_alarm && !scan_alarm => (at, dev),
+            _ => (s.index[split], scan_jump),
         };
         Some(BreakRow {
             alarm: scan_alarm || tail_alarm,
             statistic: scan.statistic,
             critical_value,
-            p_value: sup_lr_p_value(n, scan.statistic),
-            tail_p_value: tail.map(|(t, _)| t.p_value),
+            p_value: sup_lr_p_value(nw, scan.statistic),
+            tail_p_value: tail.map(|(t, ..)| t.p_value),
             change_index,
             change_angle: angle[change_index].to_f64(),
             jump,
+            curvature_p_value,
+            smooth_fits_better,
         })
     }
+}
+
+/// Residual sum of squares of the least-squares line through `x`, `y`.
+fn line_rss(x: &[f64], y: &[f64]) -> f64 {
+    let (a, b) = line(x, y);
+    x.iter().zip(y).map(|(xi, yi)| (yi - a - b * xi).powi(2)).sum()
+}
+
+/// The goodness-of-fit check of the straight elastic line: the quadratic term of the window,
+/// fitted on the whitened samples (constant, angle and angle squared, each whitened with the
+/// noise model `phi`), with its two-sided p-value from the t distribution on n - 3 degrees of
+/// freedom, and the quadratic's residual sum of squares. `xs` is the smoothed angle of the
+/// whole window (the filter's past included); `wx`, `wy` the whitened angle and torque from the
+/// first whitened sample on.
+fn curvature(xs: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], scratch: &mut Vec<f64>) -> Option<(f64, f64)> {
+    use nalgebra::{Matrix3, Vector3};
+    use statrs::distribution::{ContinuousCDF, StudentsT};
+    let n = wy.len();
+    if n < 8 {
+        return None;
+    }
+    // Whitened square of the angle: the square is taken on the smoothed angle and then
+    // filtered, as the other regressors were.
+    let lag = phi.len();
+    let span = xs.last().copied().unwrap_or(0.0).max(f64::MIN_POSITIVE);
+    let squares: Vec<f64> = xs.iter().map(|x| (x / span).powi(2)).collect();
+    crate::detectors::noise::whiten(&squares, phi, scratch);
+    let wq = scratch.get(lag..lag + n)?;
+    let gain = 1.0 - phi.iter().sum::<f64>();
+    let mut xtx = Matrix3::<f64>::zeros();
+    let mut xty = Vector3::<f64>::zeros();
+    for k in 0..n {
+        let row = Vector3::new(gain, wx[k], wq[k]);
+        xtx += row * row.transpose();
+        xty += row * wy[k];
+    }
+    let inv = xtx.try_inverse()?;
+    let beta = inv * xty;
+    let rss: f64 = (0..n).map(|k| (wy[k] - beta[0] * gain - beta[1] * wx[k] - beta[2] * wq[k]).powi(2)).sum();
+    let df = (n - 3) as f64;
+    let se = (rss / df * inv[(2, 2)]).sqrt();
+    if !(se > 0.0) {
+        return None;
+    }
+    let t = beta[2] / se;
+    let p = 2.0 * StudentsT::new(0.0, 1.0, df).ok()?.sf(t.abs());
+    Some((p, rss))
 }

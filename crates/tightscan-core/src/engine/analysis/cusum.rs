@@ -7,7 +7,7 @@ use crate::engine::input::Sample;
 use crate::engine::rows::{CusumAlarmRow, CusumRow};
 use crate::engine::status::TighteningStatus;
 use crate::engine::Detector;
-use crate::physics::torque_rate::{block_count, block_stats, ElasticWindow, PooledFit};
+use crate::physics::torque_rate::{block_count, block_stats_whitened, ElasticWindow, PooledFit};
 
 use super::Scratch;
 
@@ -24,10 +24,9 @@ const Z_0999: f64 = 3.090_232_306;
 impl Detector {
     /// The CUSUM of the block torque rates over the window, or the status that says why the
     /// window is too short or too gappy for its blocks.
-    pub(super) fn cusum_row<A: Sample, T: Sample>(
+    pub(super) fn cusum_row<A: Sample>(
         &self,
         angle: &[A],
-        torque: &[T],
         window: ElasticWindow,
         s: &mut Scratch,
     ) -> Result<CusumRow, TighteningStatus> {
@@ -49,12 +48,20 @@ impl Detector {
                 what: "elastic window",
             });
         }
-        block_stats(angle, torque, window, n_blocks, &mut s.blocks);
+        // Blocks of the whitened samples, cut by angle (stop samples are already out of them;
+        // a block that touches a stop is left out below, as the wind-up after it is not friction).
+        let (lag, n) = (s.lag, s.n_window);
+        if n < lag + 2 {
+            return Err(TighteningStatus::TooShort { samples: n, minimum: lag + 2, what: "elastic window" });
+        }
+        let gain = 1.0 - s.noise.coefficients.iter().sum::<f64>();
+        block_stats_whitened(&s.x[lag..n], &s.wx[lag..n], &s.wy[lag..n], n_blocks, gain, &mut s.blocks);
         let blocks = &s.blocks;
         let stops = &s.stops;
         let width = blocks.width;
+        let start = s.x[lag];
         let touches_stop = |b: usize| {
-            let (lo, hi) = (b as f64 * width, (b + 1) as f64 * width);
+            let (lo, hi) = (start + b as f64 * width, start + (b + 1) as f64 * width);
             stops.iter().any(|&(s0, s1)| s0 < hi && s1 >= lo)
         };
         s.usable.clear();
@@ -98,8 +105,7 @@ impl Detector {
                 df += dof;
             }
         }
-        let t0 = torque[window.start].to_f64();
-        let rise = window.peak - t0;
+        let rise = s.y[n - 1] - s.y[lag];
         // Floor for noise-free or coarsely quantised torque: 1e-6 of the rise.
         let noise_sd = (rss / df.max(1.0)).sqrt().max(1e-6 * rise.abs().max(f64::MIN_POSITIVE));
 
@@ -124,11 +130,11 @@ impl Detector {
             let alarm_block = &blocks.stats[monitor[a.alarm_step]];
             let change_block = &blocks.stats[monitor[a.change_step]];
             CusumAlarmRow {
-                alarm_index: alarm_block.last,
-                alarm_angle: angle[alarm_block.last].to_f64(),
+                alarm_index: s.index[alarm_block.last + lag],
+                alarm_angle: angle[s.index[alarm_block.last + lag]].to_f64(),
                 side: a.side,
-                change_index: change_block.first,
-                change_angle: angle[change_block.first].to_f64(),
+                change_index: s.index[change_block.first + lag],
+                change_angle: angle[s.index[change_block.first + lag]].to_f64(),
             }
         });
         Ok(CusumRow {

@@ -20,42 +20,52 @@ impl Detector {
     /// the true rate, so their signs about the training median are fair coins whatever each
     /// block's variance (a decelerating tool gives later blocks more samples): exactly the
     /// setting of the L1 procedure. A friction change moves the rate, so the signs tilt.
+    ///
+    /// Blocks are cut by angle (by clamp force on rig data) and each block's slope is taken on
+    /// the whitened samples ([`Scratch::window_samples`]), so that coloured noise does not make
+    /// neighbouring blocks' signs agree.
     pub(super) fn l1_row<A: Sample>(&self, angle: &[A], s: &mut Scratch) -> Option<L1Row> {
-        let n = s.x.len();
+        let lag = s.lag;
+        let n = s.n_window;
         let n_blocks = (n / 8).clamp(16, 200);
         if n < 3 * n_blocks {
             return None;
         }
         let use_force = s.has_force;
         let (lo, hi) = if use_force {
-            let v = s.index.iter().map(|&i| s.force[i]);
+            let v = s.index[lag..n].iter().map(|&i| s.force[i]);
             v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), f| (a.min(f), b.max(f)))
         } else {
-            (s.x[0], s.x[n - 1])
+            (s.x[lag], s.x[n - 1])
         };
         if !(hi > lo) {
             return None;
         }
         let width = (hi - lo) / n_blocks as f64;
-        // Per block: n, sum x, sum y, sum xx, sum xy, and the first sample's position.
+        // Per block: n, sum r, sum y, sum rr, sum ry of the whitened regressor r and torque y,
+        // and the first sample's position.
         let mut sums = vec![(0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64, usize::MAX); n_blocks];
-        for k in 0..n {
-            let x = if use_force { s.force[s.index[k]] - lo } else { s.x[k] - lo };
-            let b = ((x / width) as usize).min(n_blocks - 1);
-            let xl = x - b as f64 * width;
+        let regressor = if use_force { &s.wf } else { &s.wx };
+        for (k, (&r, &y)) in regressor.iter().zip(&s.wy).enumerate().take(n).skip(lag) {
+            let position = if use_force { s.force[s.index[k]] - lo } else { s.x[k] - lo };
+            let b = ((position / width) as usize).min(n_blocks - 1);
             let e = &mut sums[b];
             e.0 += 1.0;
-            e.1 += xl;
-            e.2 += s.y[k];
-            e.3 += xl * xl;
-            e.4 += xl * s.y[k];
+            e.1 += r;
+            e.2 += y;
+            e.3 += r * r;
+            e.4 += r * y;
             e.5 = e.5.min(k);
         }
+        // A block's whitened regressor spreads about as its position does, times the filter's
+        // gain at low frequency; the same relative floor as for the unwhitened slopes.
+        let gain: f64 = 1.0 - s.noise.coefficients.iter().sum::<f64>();
+        let floor = 1e-9 * (width * gain).powi(2);
         s.regressor.clear();
         s.block_first.clear(); // position (into s.x) of each usable block's first sample
         for e in &sums {
             let sxx = e.3 - e.1 * e.1 / e.0.max(1.0);
-            if e.0 >= 3.0 && sxx > 1e-9 * width * width {
+            if e.0 >= 3.0 && sxx > floor {
                 s.regressor.push((e.4 - e.1 * e.2 / e.0) / sxx);
                 s.block_first.push(e.5);
             }

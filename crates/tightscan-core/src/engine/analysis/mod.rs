@@ -15,7 +15,8 @@ use crate::engine::schema;
 use crate::engine::status::TighteningStatus;
 use crate::engine::Detector;
 use crate::physics::phases::{find_phases, PhaseScratch, Phases, MIN_FIT_SAMPLES};
-use crate::physics::torque_rate::{stop_ranges, Blocks, WindowError};
+use crate::detectors::noise::{estimate_noise, whiten, NoiseModel, NoiseScratch};
+use crate::physics::torque_rate::{encoder_resolution, stop_ranges, Blocks, ElasticWindow, WindowError};
 
 use friction::FrictionInput;
 
@@ -38,8 +39,104 @@ pub(super) struct Scratch {
     block_first: Vec<usize>,
     has_force: bool,
     regressor: Vec<f64>,
+    /// Samples of the window in `x`, `y`, `index` (stops left out); past it, up to the peak,
+    /// those only the end test uses.
+    n_window: usize,
+    /// The window's noise model, and `x`, `y` (and clamp force) whitened with it; the first
+    /// `lag` whitened samples have no past and are not used.
+    noise: NoiseModel,
+    noise_scratch: NoiseScratch,
+    lag: usize,
+    wx: Vec<f64>,
+    wy: Vec<f64>,
+    wf: Vec<f64>,
+    /// The angle of `x` with the encoder's quantisation averaged out: the regressor the line is
+    /// fitted on (the torque follows the true angle, not the recorded steps).
+    xs: Vec<f64>,
+    noise_t: Vec<f64>,
+    noise_y: Vec<f64>,
 }
 
+/// Samples per block of the local lines the noise model is estimated from.
+const NOISE_BLOCK: usize = 32;
+
+impl Scratch {
+    /// The samples the detectors use, in window coordinates (angle and torque relative to the
+    /// window's first sample): the window without its stop ranges (a CSDT pause: relaxation at
+    /// standstill and the wind-up after it are not friction), then, when `tail_end` is given
+    /// (the peak's index; `None` when the curve yields, whose end is bent on purpose), the
+    /// samples between the window's end and the peak. Then the noise model of the window and
+    /// the whitened samples ([`crate::detectors::noise`]).
+    fn window_samples<A: Sample, T: Sample>(&mut self, angle: &[A], torque: &[T], window: ElasticWindow, tail_end: Option<usize>) {
+        let a0 = angle[window.start].to_f64();
+        let t0 = torque[window.start].to_f64();
+        self.x.clear();
+        self.y.clear();
+        self.index.clear();
+        let last = tail_end.map_or(window.end, |end| (end + 1).min(angle.len()).max(window.end));
+        for i in window.start..last {
+            let x = angle[i].to_f64() - a0;
+            if !self.stops.iter().any(|&(lo, hi)| x >= lo && x <= hi) {
+                self.x.push(x);
+                self.y.push(torque[i].to_f64() - t0);
+                self.index.push(i);
+            }
+        }
+        self.n_window = self.index.partition_point(|&i| i < window.end);
+        let n = self.n_window;
+        smooth_angle(&self.x, n, &mut self.xs);
+        // The noise is the channel's, the same before the window as in it, and the window alone
+        // (a few hundred samples) leaves the autoregression too uncertain where it matters
+        // most, near phi = 1: an error of 0.05 in phi = 0.85 leaves 1.8 times the variance a
+        // white-noise test expects. So it is estimated over the window and up to three windows'
+        // worth of samples before it (the end of the rundown), torque on sample number: local
+        // lines in time follow the torque's own course, at standstill too. Blocks of 32 samples
+        // are long against a 50 Hz filter's correlation time at 2 kHz, and short enough that a
+        // bend hardly shows inside one.
+        let first = window.start.saturating_sub(3 * (window.end - window.start));
+        self.noise_y.clear();
+        self.noise_y.extend(torque[first..window.end].iter().map(|t| t.to_f64()));
+        self.noise_t.clear();
+        self.noise_t.extend((0..self.noise_y.len()).map(|i| i as f64));
+        self.noise = estimate_noise(&self.noise_t, &self.noise_y, NOISE_BLOCK, &mut self.noise_scratch);
+        self.lag = self.noise.coefficients.len();
+        whiten(&self.xs, &self.noise.coefficients, &mut self.wx);
+        whiten(&self.y, &self.noise.coefficients, &mut self.wy);
+        self.wf.clear();
+        if self.has_force {
+            let force: Vec<f64> = self.index.iter().map(|&i| self.force[i]).collect();
+            whiten(&force, &self.noise.coefficients, &mut self.wf);
+        }
+    }
+}
+
+
+/// The recorded angle `x` with its encoder quantisation averaged out, into `out`: a centred
+/// moving average over about two encoder steps' worth of samples (at most 65), narrowed
+/// symmetrically at the ends so a straight line passes unchanged. Whitening amplifies what
+/// changes from sample to sample, and quantisation error is such a change: on the raw angle a
+/// whitened regressor is mostly encoder steps, and the block slopes mostly noise. The first
+/// `n` samples (the window) set the width; the rest follow with the same.
+fn smooth_angle(x: &[f64], n: usize, out: &mut Vec<f64>) {
+    out.clear();
+    let resolution = encoder_resolution(&x[..n]);
+    let step = if n > 1 { (x[n - 1] - x[0]) / (n - 1) as f64 } else { 0.0 };
+    let half = if resolution > 0.0 && step > 0.0 { ((resolution / step).ceil() as usize).min(32) } else { 0 };
+    if half == 0 {
+        out.extend_from_slice(x);
+        return;
+    }
+    let mut prefix = Vec::with_capacity(x.len() + 1);
+    prefix.push(0.0);
+    for v in x {
+        prefix.push(prefix[prefix.len() - 1] + v);
+    }
+    let len = x.len();
+    out.extend((0..len).map(|i| {
+        let h = half.min(i).min(len - 1 - i);
+        (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64
+    }));
+}
 
 impl Detector {
     pub(super) fn analyse_row(&self, table: &TighteningTable<'_>, i: usize, scratch: &mut Scratch) -> RowResult {
@@ -124,10 +221,11 @@ impl Detector {
         };
         stop_ranges(angle, torque, window, &mut s.stops);
         let tail_end = phases.yield_angle.is_none().then_some(phases.peak_index);
-        let breaks = self.break_row(angle, torque, window, tail_end, s);
-        let residual = self.residual_row(angle, &phases.line, row, s);
+        s.window_samples(angle, torque, window, tail_end);
+        let breaks = self.break_row(angle, s);
+        let residual = self.residual_row(angle, row, s);
         let l1 = self.l1_row(angle, s);
-        let cusum = self.cusum_row(angle, torque, window, s);
+        let cusum = self.cusum_row(angle, window, s);
         let status = match &cusum {
             Err(status) if friction_status.is_ok() => status.clone(),
             _ => friction_status,
@@ -145,6 +243,7 @@ impl Detector {
                 torque_rate: phases.torque_rate,
             }),
             friction: friction_row,
+            noise_lag1: Some(s.noise.lag1_autocorrelation()),
             breaks,
             residual,
             l1,

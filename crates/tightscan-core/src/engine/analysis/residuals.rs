@@ -6,36 +6,33 @@ use crate::detectors::shewhart::shewhart_scan;
 use crate::engine::input::Sample;
 use crate::engine::rows::{KdeRow, ResidualRow};
 use crate::engine::Detector;
-use crate::physics::phases::{robust_line, Line};
+use crate::physics::phases::robust_line;
 
 use super::Scratch;
 
 impl Detector {
-    /// Tests on the residuals of the robust elastic line (the phase finder's, in the same window
-    /// coordinates) over the samples the break scan used (`s.x`, `s.y`, `s.index`): the k-sigma
-    /// chart always, the kernel-density test when enabled. The line is fitted to the whole
-    /// window, so under no change the residuals are nearly exchangeable, which the permutation
-    /// test needs; a change leaves residuals whose level or spread differs before and after it.
-    pub(super) fn residual_row<A: Sample>(&self, angle: &[A], line: &Line, row: usize, s: &mut Scratch) -> Option<ResidualRow> {
+    /// Tests on the residuals of the robust elastic line over the window's whitened samples
+    /// (the break scan's, see [`Scratch::window_samples`]): the k-sigma chart always, the
+    /// kernel-density test when enabled. The line is refitted to exactly the samples tested: the
+    /// phase finder's line also saw the stop of a CSDT pause (relaxation at standstill, then the
+    /// wind-up), whose pull left structure in the residuals (the kernel-density test alarmed on
+    /// half of the clean CSDT curves). Under no change the whitened residuals are close to
+    /// exchangeable, which the permutation test needs; a change leaves residuals whose level or
+    /// spread differs before and after it.
+    pub(super) fn residual_row<A: Sample>(&self, angle: &[A], row: usize, s: &mut Scratch) -> Option<ResidualRow> {
         let cfg = &self.config.residual_tests;
-        // The phase finder's line is fitted to every window sample. Where the window holds a
-        // stop (a CSDT pause: relaxation at standstill, then the wind-up), those samples pull it
-        // off the elastic line, and the residuals of the samples tested here (the stop left out)
-        // would carry that bias as structure: the kernel-density test alarmed on half of the
-        // clean CSDT curves. Refit on the samples tested then.
-        let refit;
-        let line = if s.stops.is_empty() {
-            line
-        } else {
-            refit = robust_line(&s.x, &s.y, &mut s.bits)?;
-            &refit
-        };
+        let (lag, n_window) = (s.lag, s.n_window);
+        if n_window <= lag {
+            return None;
+        }
+        let (wx, wy) = (&s.wx[lag..n_window], &s.wy[lag..n_window]);
+        let line = robust_line(wx, wy, &mut s.bits)?;
         s.line_residuals.clear();
-        s.line_residuals.extend(s.x.iter().zip(&s.y).map(|(x, y)| y - line.intercept - line.slope * x));
+        s.line_residuals.extend(wx.iter().zip(wy).map(|(x, y)| y - line.intercept - line.slope * x));
         let n = s.line_residuals.len();
         let training = ((cfg.training_fraction * n as f64).round() as usize).max(2);
         let chart = shewhart_scan(&s.line_residuals, training, cfg.shewhart_k).ok()?;
-        let at = |k: usize| (s.index[k], angle[s.index[k]].to_f64());
+        let at = |k: usize| (s.index[k + lag], angle[s.index[k + lag]].to_f64());
         let mut out = ResidualRow {
             shewhart_alarm: chart.alarm_index.is_some(),
             shewhart_max_abs_z: chart.max_abs_z,

@@ -1,0 +1,62 @@
+"""False alarms under coloured torque noise (issue: detection that holds on data we did not
+generate). A transducer's anti-aliasing filter makes the noise autocorrelated; the detectors
+test the window pre-whitened with an AR model of its noise, fitted to local residuals
+(crates/tightscan-core/src/detectors/noise.rs).
+
+The curves are the built-in simulator's, noise-free, with AR(1) noise of the simulator's
+default marginal sd (0.2 % of the target torque) added here, so the noise is not the one the
+decision rule was calibrated on."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+import tightscan
+
+N_CURVES = 1500
+
+
+def _with_ar1_noise(phi: float, seed: int) -> pa.Table:
+    curves, _ = tightscan.simulate(N_CURVES, seed=seed, fault_fraction=0.0, torque_noise=0.0)
+    rng = np.random.default_rng(seed)
+    noisy = []
+    for torque, target in zip(curves["torque"].to_pylist(), curves["target_torque"].to_pylist()):
+        t = np.asarray(torque, dtype=float)
+        sd = 0.002 * target
+        innovations = rng.normal(size=t.size) * sd * np.sqrt(1.0 - phi**2)
+        e = np.empty(t.size)
+        e[0] = rng.normal() * sd
+        for i in range(1, t.size):
+            e[i] = phi * e[i - 1] + innovations[i]
+        noisy.append(t + e)
+    return curves.set_column(curves.column_names.index("torque"), "torque", pa.array(noisy, pa.list_(pa.float64())))
+
+
+def _false_alarm_rate(results: pa.Table) -> float:
+    decided = [v for v in results["change_detected"].to_pylist() if v is not None]
+    assert len(decided) >= 0.98 * N_CURVES
+    return float(np.mean(decided))
+
+
+@pytest.mark.slow
+def test_size_under_moderately_coloured_noise_is_nominal() -> None:
+    # AR(1) with phi = 0.5; before pre-whitening the default rule alarmed on 33 % of these.
+    # Binomial sd at 1 % over 1,500 curves is 0.26 points: [0.5, 1.5] x alpha is about 2 sd.
+    results = tightscan.detect_batch(_with_ar1_noise(0.5, seed=71))
+    assert 0.005 <= _false_alarm_rate(results) <= 0.015
+    lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
+    assert 0.4 <= lag1 <= 0.6
+
+
+@pytest.mark.slow
+def test_size_under_strongly_coloured_noise_is_bounded() -> None:
+    # AR(1) with phi = 0.85 (a first-order low-pass of about 50 Hz on a 2 kHz channel). Before
+    # pre-whitening the rule alarmed on 86 % of these; now about 5 %. The goal (at most
+    # 1.5 x alpha) is not met yet: the AR fit's sampling error near phi = 1 leaves residual
+    # correlation. This guards the gain until it is.
+    results = tightscan.detect_batch(_with_ar1_noise(0.85, seed=72))
+    assert _false_alarm_rate(results) <= 0.08
+    lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
+    assert 0.75 <= lag1 <= 0.9

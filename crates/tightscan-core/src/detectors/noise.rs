@@ -192,10 +192,27 @@ fn levinson(gamma: &[f64]) -> Vec<(Vec<f64>, f64)> {
 
 /// Autocovariances gamma_0..gamma_{len-1} of the AR model with innovation variance `v`.
 fn model_autocovariances(phi: &[f64], v: f64, len: usize) -> Vec<f64> {
-    // gamma_h = v sum_t psi_t psi_{t+h}, the impulse response taken far enough that it has died
-    // out (phi near 1 decays slowly: 0.95^2000 is 1e-45).
-    let psi = impulse_response(phi, len + 2048);
-    (0..len).map(|h| v * psi.iter().zip(&psi[h..]).map(|(a, b)| a * b).sum::<f64>()).collect()
+    // gamma_0..gamma_p solve gamma_h - sum_j phi_j gamma_|h-j| = v [h = 0] (h = 0..p); past p
+    // the Yule-Walker recursion gamma_h = sum_j phi_j gamma_{h-j} continues them.
+    let p = phi.len();
+    let mut a = nalgebra::DMatrix::<f64>::zeros(p + 1, p + 1);
+    for h in 0..=p {
+        a[(h, h)] += 1.0;
+        for (j, c) in phi.iter().enumerate() {
+            a[(h, (h as isize - j as isize - 1).unsigned_abs())] -= c;
+        }
+    }
+    let mut rhs = nalgebra::DVector::<f64>::zeros(p + 1);
+    rhs[0] = v;
+    let Some(head) = a.lu().solve(&rhs) else {
+        return vec![0.0; len];
+    };
+    let mut gamma: Vec<f64> = head.iter().copied().take(len).collect();
+    while gamma.len() < len {
+        let h = gamma.len();
+        gamma.push(phi.iter().enumerate().map(|(j, c)| c * gamma[h - 1 - j]).sum());
+    }
+    gamma
 }
 
 /// `c[h][k]`: expected lag-h residual product sum per pair, per unit of gamma_k, for residuals
@@ -256,6 +273,18 @@ fn residual_weights(len: usize, max_lag: usize) -> Vec<Vec<f64>> {
     c
 }
 
+/// [`residual_weights`] for lags up to [`MAX_AR_ORDER`], computed once per block length and
+/// thread (they cost O(L^2) and depend on nothing else).
+fn cached_residual_weights(block: usize) -> std::rc::Rc<Vec<Vec<f64>>> {
+    use std::cell::RefCell;
+    use std::collections::HashMap;
+    use std::rc::Rc;
+    thread_local! {
+        static WEIGHTS: RefCell<HashMap<usize, Rc<Vec<Vec<f64>>>>> = RefCell::new(HashMap::new());
+    }
+    WEIGHTS.with(|w| w.borrow_mut().entry(block).or_insert_with(|| Rc::new(residual_weights(block, MAX_AR_ORDER))).clone())
+}
+
 /// Estimates the window's noise model from local residuals (blocks of `block` samples): an
 /// AR order by BIC, then the bias-corrected method of moments (module docs). `x`, `y` are the
 /// window's samples in order (angle and torque, or any regressor).
@@ -281,7 +310,7 @@ pub fn estimate_noise(x: &[f64], y: &[f64], block: usize, scratch: &mut NoiseScr
     }
     // Blocks are `block` long but for the last, which takes the remainder; the weights of the
     // common length serve all of them (the remainder is less than one block).
-    let weights = residual_weights(block, order);
+    let weights = cached_residual_weights(block);
     let (mut phi, mut v) = fits[order].clone();
     for _ in 0..8 {
         let model = model_autocovariances(&phi, v, block);
@@ -415,6 +444,21 @@ mod tests {
         let g1: f64 = u.windows(2).map(|w| (w[0] - m) * (w[1] - m)).sum();
         assert!((g1 / g0).abs() < 0.05);
         assert!(((g0 / u.len() as f64) - 1.0).abs() < 0.08);
+    }
+
+    #[test]
+    fn model_autocovariances_match_the_impulse_response() {
+        for phi in [vec![0.9], vec![1.2, -0.4], vec![0.5, 0.2, -0.1]] {
+            let g = model_autocovariances(&phi, 2.0, 40);
+            let psi = impulse_response(&phi, 6000);
+            for (h, gh) in g.iter().enumerate() {
+                let want: f64 = 2.0 * psi.iter().zip(&psi[h..]).map(|(a, b)| a * b).sum::<f64>();
+                assert!((gh - want).abs() < 1e-9 * want.abs().max(1.0), "{phi:?} lag {h}: {gh} vs {want}");
+            }
+        }
+        // AR(1): v phi^h / (1 - phi^2).
+        let g = model_autocovariances(&[0.8], 1.0, 5);
+        assert!((g[3] - 0.8f64.powi(3) / 0.36).abs() < 1e-12);
     }
 
     #[test]

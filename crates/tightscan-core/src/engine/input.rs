@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use arrow_array::cast::AsArray;
-use arrow_array::types::{Float32Type, Float64Type};
+use arrow_array::types::{Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow_array::{
     Array, ArrayRef, GenericListArray, LargeListArray, OffsetSizeTrait, RecordBatch, UInt32Array,
 };
@@ -142,6 +142,64 @@ impl<'a> ChannelColumn<'a> {
     }
 }
 
+/// The controller-step channel of a nested batch (list of int32 or int64).
+#[derive(Clone, Debug)]
+pub struct StepColumn<'a> {
+    offsets: Offsets<'a>,
+    list_nulls: Option<&'a NullBuffer>,
+    values: StepValues<'a>,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum StepValues<'a> {
+    I32(&'a [i32]),
+    I64(&'a [i64]),
+}
+
+impl<'a> StepColumn<'a> {
+    fn from_array(array: &'a dyn Array) -> Result<Self> {
+        let (offsets, list_nulls, child) = match array.data_type() {
+            DataType::List(_) => {
+                let l = array.as_list::<i32>();
+                (Offsets::I32(l.value_offsets()), l.nulls(), l.values())
+            }
+            DataType::LargeList(_) => {
+                let l = array.as_list::<i64>();
+                (Offsets::I64(l.value_offsets()), l.nulls(), l.values())
+            }
+            other => return Err(TightscanError::schema(schema::STEP, format!("expected a list column, got {other}"))),
+        };
+        let values = match child.data_type() {
+            DataType::Int32 => StepValues::I32(child.as_primitive::<Int32Type>().values()),
+            DataType::Int64 => StepValues::I64(child.as_primitive::<Int64Type>().values()),
+            other => {
+                return Err(TightscanError::schema(schema::STEP, format!("expected int32 or int64 step numbers, got {other}")))
+            }
+        };
+        Ok(Self { offsets, list_nulls: list_nulls.filter(|n| n.null_count() > 0), values })
+    }
+
+    /// Length of row `i`'s step list and the first sample of its last step (the sample where
+    /// the step number last changes; 0 for a single step). `None` for a null row.
+    pub fn last_step_start(&self, i: usize) -> Option<(usize, usize)> {
+        if self.list_nulls.is_some_and(|n| n.is_null(i)) {
+            return None;
+        }
+        let (start, end) = match self.offsets {
+            Offsets::I32(o) => (o[i] as usize, o[i + 1] as usize),
+            Offsets::I64(o) => (o[i] as usize, o[i + 1] as usize),
+        };
+        fn last_change<T: PartialEq>(v: &[T]) -> usize {
+            (1..v.len()).rev().find(|&k| v[k] != v[k - 1]).unwrap_or(0)
+        }
+        let start_of_last = match self.values {
+            StepValues::I32(v) => last_change(&v[start..end]),
+            StepValues::I64(v) => last_change(&v[start..end]),
+        };
+        Some((end - start, start_of_last))
+    }
+}
+
 /// Zero-copy view of a nested tightening batch.
 #[derive(Debug)]
 pub struct TighteningTable<'a> {
@@ -157,6 +215,8 @@ pub struct TighteningTable<'a> {
     pub thread: Option<&'a dyn Array>,
     /// Numeric metadata columns present, by name (see [`schema::NUMERIC_METADATA`]).
     pub numeric: Vec<(&'static str, &'a dyn Array)>,
+    /// Controller steps, when the table has them ([`schema::STEP`]).
+    pub step: Option<StepColumn<'a>>,
 }
 
 /// Columns carried from the first sample of each tightening when the long layout is nested:
@@ -190,7 +250,8 @@ impl<'a> TighteningTable<'a> {
             .iter()
             .filter_map(|(name, _)| batch.column_by_name(name).map(|a| (*name, a.as_ref())))
             .collect();
-        Ok(Self { n_rows: batch.num_rows(), angle, torque, optional, thread, numeric })
+        let step = batch.column_by_name(schema::STEP).map(|a| StepColumn::from_array(a.as_ref())).transpose()?;
+        Ok(Self { n_rows: batch.num_rows(), angle, torque, optional, thread, numeric, step })
     }
 
     /// The optional channel `name`, if the table has it.
@@ -339,12 +400,12 @@ pub fn nest_long(batch: &RecordBatch, passthrough: &[String]) -> Result<RecordBa
     let mut columns: Vec<ArrayRef> = Vec::new();
     fields.push(batch.schema().field_with_name(TIGHTENING_ID)?.clone());
     columns.push(take(ids.as_ref(), &first_rows, None)?);
-    for spec in CHANNELS {
-        let Some(values) = batch.column_by_name(spec.name) else { continue };
+    for name in CHANNELS.iter().map(|c| c.name).chain([schema::STEP]) {
+        let Some(values) = batch.column_by_name(name) else { continue };
         let values = if contiguous { values.clone() } else { take(values.as_ref(), &order, None)? };
         let item = Arc::new(Field::new_list_field(values.data_type().clone(), true));
         let list = LargeListArray::try_new(item.clone(), offsets.clone(), values, None)?;
-        fields.push(Field::new(spec.name, DataType::LargeList(item), true));
+        fields.push(Field::new(name, DataType::LargeList(item), true));
         columns.push(Arc::new(list));
     }
     let carried = metadata_columns().filter(|m| !passthrough.iter().any(|p| p == m)).map(str::to_string);

@@ -12,6 +12,9 @@ pub(super) struct RowResult {
     pub(super) status: TighteningStatus,
     pub(super) n_samples: usize,
     pub(super) window: Option<(f64, f64)>,
+    /// Angle where the samples the detectors test start (later than the window's start after a
+    /// controller event inside it).
+    pub(super) tested_start: Option<f64>,
     pub(super) phases: Option<PhaseRow>,
     pub(super) friction: Option<FrictionEstimate>,
     /// Lag-1 autocorrelation of the window's noise model.
@@ -113,6 +116,7 @@ impl RowResult {
             status,
             n_samples,
             window: None,
+            tested_start: None,
             phases: None,
             friction: None,
             noise_lag1: None,

@@ -20,6 +20,10 @@ pub const TIME: &str = "time";
 pub const SPEED: &str = "speed";
 /// Clamp force [kN] (test rigs). Optional.
 pub const CLAMP_FORCE: &str = "clamp_force";
+/// Controller step of each sample (integer; tool programs of several steps, e.g. the Rexroth
+/// import). Optional. A change of step is a controller event, not friction: the detectors test
+/// the last step of the elastic window, after the torque has regained its level.
+pub const STEP: &str = "step";
 /// Tightening strategy: CST, CSDT or HDT. Optional metadata.
 pub const STRATEGY: &str = "strategy";
 /// ISO thread designation, e.g. "M8x1.25"; "M8" means coarse pitch. Optional metadata.
@@ -195,6 +199,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("snug_angle", ResultType::Float64, "deg", "where the elastic line meets the prevailing torque (tangent method)"),
     ("elastic_start_angle", ResultType::Float64, "deg", "start of the analysed elastic window"),
     ("elastic_end_angle", ResultType::Float64, "deg", "end of the analysed elastic window"),
+    ("tested_start_angle", ResultType::Float64, "deg", "where the samples the detectors test start: the window's start, or later, after the last controller step change, unsampled pause or relaxation dip inside it"),
     ("yield_angle", ResultType::Float64, "deg", "where the torque gradient falls below half the elastic one (null when it does not)"),
     ("peak_torque", ResultType::Float64, "Nm", "highest torque of the curve"),
     ("peak_angle", ResultType::Float64, "deg", "angle at the highest torque"),

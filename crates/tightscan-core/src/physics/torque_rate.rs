@@ -318,6 +318,93 @@ pub fn encoder_resolution(x: &[f64]) -> f64 {
     }
 }
 
+/// Where the tool resumed after the last stop that the recorder did not sample: a tool that
+/// stands still while its controller waits often records nothing, so the stop shows as a gap in
+/// time (more than three times the window's median sample interval) rather than as a run of
+/// unchanged angle. Returns the first sample after the gap at which the torque has regained its
+/// last high before the gap (it relaxes as the tool slows, then winds up again faster than
+/// friction would raise it). `None` without such a gap.
+pub fn resumed_after_time_gap<T: Sample, S: Sample>(torque: &[T], time: &[S], window: ElasticWindow, scratch: &mut Vec<f64>) -> Option<usize> {
+    let (start, end) = (window.start, window.end);
+    if end < start + 3 || time.len() < end {
+        return None;
+    }
+    scratch.clear();
+    scratch.extend((start + 1..end).map(|i| time[i].to_f64() - time[i - 1].to_f64()));
+    let mid = scratch.len() / 2;
+    let median = *scratch.select_nth_unstable_by(mid, f64::total_cmp).1;
+    if !(median > 0.0) {
+        return None;
+    }
+    let gap = (start + 1..end).rev().find(|&g| time[g].to_f64() - time[g - 1].to_f64() > 3.0 * median)?;
+    let mut high = gap - 1;
+    while high > start && torque[high - 1].to_f64() >= torque[high].to_f64() {
+        high -= 1;
+    }
+    let level = torque[high].to_f64();
+    Some((gap..end).find(|&k| torque[k].to_f64() >= level).unwrap_or(end))
+}
+
+/// Where the torque has wound up again after the last relaxation dip of the window that no
+/// friction change explains. A tool that pauses or slows hard lets the torsion relax: the
+/// torque falls, then winds up again at many times the elastic rate once the tool turns
+/// (the real Rexroth runs pause inside the final step, and their recorder samples through it).
+/// A friction decrease also makes the torque fall, but at once (one sample), and then rises at
+/// the new, lower elastic rate; an intermittent change that ends jumps back at once too. So a
+/// dip counts when it falls by more than six noise sd (robust, from the detrended first
+/// differences) over at least three samples, and regains its level over at least three samples
+/// at three times the elastic torque rate `rate` or faster. Dips inside `stops` (recorded
+/// pauses, handled by [`stop_ranges`]) are skipped.
+/// Returns the first sample at which the torque has regained the level of the last such dip.
+pub fn resumed_after_relaxation<A: Sample, T: Sample>(
+    angle: &[A],
+    torque: &[T],
+    window: ElasticWindow,
+    rate: f64,
+    stops: &[(f64, f64)],
+    scratch: &mut Vec<f64>,
+) -> Option<usize> {
+    let (start, end) = (window.start, window.end);
+    if end < start + 4 || !(rate > 0.0) {
+        return None;
+    }
+    let (a, t) = (|i: usize| angle[i].to_f64(), |i: usize| torque[i].to_f64());
+    scratch.clear();
+    scratch.extend((start + 1..end).map(|i| (t(i) - t(i - 1)) - rate * (a(i) - a(i - 1))));
+    let mid = scratch.len() / 2;
+    let centre = *scratch.select_nth_unstable_by(mid, f64::total_cmp).1;
+    scratch.iter_mut().for_each(|d| *d = (*d - centre).abs());
+    let mad = *scratch.select_nth_unstable_by(mid, f64::total_cmp).1;
+    // First differences of white noise have sd sqrt(2) sigma; MAD to sd by 1.4826.
+    let noise_sd = 1.4826 * mad / std::f64::consts::SQRT_2;
+    let a0 = a(start);
+    let mut resumed = None;
+    let mut i = start + 1;
+    while i < end {
+        if t(i) >= t(i - 1) {
+            i += 1;
+            continue;
+        }
+        let high = i - 1;
+        let level = t(high);
+        let mut low = i;
+        while low + 1 < end && t(low + 1) <= t(low) {
+            low += 1;
+        }
+        let drop = level - t(low);
+        let in_stop = stops.iter().any(|&(lo, hi)| a(high) - a0 >= lo && a(high) - a0 <= hi);
+        if drop > 6.0 * noise_sd && low - high >= 3 && !in_stop {
+            if let Some(k) = (low..end).find(|&k| t(k) >= level) {
+                if k - low >= 3 && drop >= 3.0 * rate * (a(k) - a(low)) {
+                    resumed = Some(k);
+                }
+            }
+        }
+        i = low + 1;
+    }
+    resumed
+}
+
 /// Number of blocks for a window of `len` samples.
 pub fn block_count(len: usize, cfg: &BlockConfig) -> usize {
     (len / cfg.min_block_samples).min(cfg.max_blocks)

@@ -16,7 +16,10 @@ use crate::engine::status::TighteningStatus;
 use crate::engine::Detector;
 use crate::physics::phases::{find_phases, PhaseScratch, Phases, MIN_FIT_SAMPLES};
 use crate::detectors::noise::{estimate_noise, whiten, NoiseModel, NoiseScratch};
-use crate::physics::torque_rate::{encoder_resolution, stop_ranges, Blocks, ElasticWindow, WindowError};
+use crate::detectors::breakpoint::MIN_SEGMENT;
+use crate::physics::torque_rate::{
+    encoder_resolution, resumed_after_relaxation, resumed_after_time_gap, stop_ranges, Blocks, ElasticWindow, WindowError,
+};
 
 use friction::FrictionInput;
 
@@ -111,6 +114,53 @@ impl Scratch {
 }
 
 
+/// Where one tightening sits in the table, and what the table says of its controller steps.
+#[derive(Clone, Copy, Debug)]
+struct Curve<'a> {
+    /// Row of the tightening in the batch.
+    row: usize,
+    /// First sample of the tightening's last controller step, when the table has steps.
+    last_step: Option<usize>,
+    /// The time channel, when the table has it.
+    time: Option<Samples<'a>>,
+}
+
+/// The part of the elastic window the detectors test when the controller changed step inside
+/// it: from where the last step has regained the torque the previous step had reached. A step
+/// change stops or slows the tool (the torque relaxes, then winds up again faster than friction
+/// would raise it) and changes the speed, and with it the speed-dependent friction: a break at
+/// the change is the controller's, not a friction change (real Rexroth runs: pre-tightening to
+/// 1.1 Nm, then the final step at low speed, both inside the elastic window).
+fn last_step_window<T: Sample>(torque: &[T], window: ElasticWindow, last_step: Option<usize>) -> ElasticWindow {
+    match last_step {
+        Some(c) if c > window.start && c < window.end => {
+            let level = torque[window.start..c].iter().map(|t| t.to_f64()).fold(f64::NEG_INFINITY, f64::max);
+            let regained = (c..window.end).find(|&k| torque[k].to_f64() >= level).unwrap_or(c);
+            ElasticWindow { start: regained, ..window }
+        }
+        _ => window,
+    }
+}
+
+/// The part of the window after the last stop the recorder did not sample (a gap in the time
+/// channel, see [`resumed_after_time_gap`]), when that part is long enough for the break scan.
+/// A controller that pauses inside the final rise starts a new segment: on the real Rexroth
+/// runs the torque is nearly flat before the pause and rises after it, and one line through
+/// both is a misfit, not a friction change. A stop the recorder did sample (a run of unchanged
+/// angle, the simulator's CSDT pause) joins one elastic line and is only left out
+/// ([`stop_ranges`]).
+fn after_unsampled_stop<T: Sample>(torque: &[T], window: ElasticWindow, time: Option<Samples<'_>>, scratch: &mut Vec<f64>) -> ElasticWindow {
+    let resumed = match time {
+        Some(Samples::F32(t)) => resumed_after_time_gap(torque, t, window, scratch),
+        Some(Samples::F64(t)) => resumed_after_time_gap(torque, t, window, scratch),
+        None => None,
+    };
+    match resumed {
+        Some(k) if window.end.saturating_sub(k) >= 2 * MIN_SEGMENT => ElasticWindow { start: k, ..window },
+        _ => window,
+    }
+}
+
 /// The recorded angle `x` with its encoder quantisation averaged out, into `out`: a centred
 /// moving average over about two encoder steps' worth of samples (at most 65), narrowed
 /// symmetrically at the ends so a straight line passes unchanged. Whitening amplifies what
@@ -188,12 +238,23 @@ impl Detector {
                 n,
             );
         }
+        let last_step = match table.step.as_ref().and_then(|c| c.last_step_start(i)) {
+            Some((len, _)) if len != n => {
+                return RowResult::failed(TighteningStatus::LengthMismatch { channel: schema::STEP, len, expected: n }, n)
+            }
+            other => other.map(|(_, start)| start),
+        };
         let friction = self.friction_input(table, i, scratch);
+        let time = table.channel(schema::TIME).and_then(|c| match c.row(i) {
+            ChannelRow::Present { samples, .. } => Some(samples),
+            ChannelRow::Null => None,
+        });
+        let curve = Curve { row: i, last_step, time };
         match (angle, torque) {
-            (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, i, scratch),
-            (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, i, scratch),
-            (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, i, scratch),
-            (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, i, scratch),
+            (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, curve, scratch),
+            (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, curve, scratch),
+            (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, curve, scratch),
+            (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, curve, scratch),
         }
     }
 
@@ -205,21 +266,30 @@ impl Detector {
         angle: &[A],
         torque: &[T],
         friction: std::result::Result<FrictionInput, TighteningStatus>,
-        row: usize,
+        curve: Curve<'_>,
         s: &mut Scratch,
     ) -> RowResult {
-        let n = angle.len();
+        let (n, row) = (angle.len(), curve.row);
         let phases = match self.phases(angle, torque, s) {
             Ok(p) => p,
             Err(status) => return RowResult::failed(status, n),
         };
-        let window = phases.window;
+        let window = last_step_window(torque, phases.window, curve.last_step);
         // An unknown thread is named first: it is a fix to the data that applies to every row.
         let (friction_row, friction_status) = match friction {
             Ok(f) => (self.friction_row(torque, &phases, f, s), TighteningStatus::Ok),
             Err(status) => (None, status),
         };
+        let window = after_unsampled_stop(torque, window, curve.time, &mut s.residuals);
         stop_ranges(angle, torque, window, &mut s.stops);
+        let window = match resumed_after_relaxation(angle, torque, window, phases.torque_rate, &s.stops, &mut s.residuals) {
+            Some(k) if window.end.saturating_sub(k) >= 2 * MIN_SEGMENT => {
+                let resumed = ElasticWindow { start: k, ..window };
+                stop_ranges(angle, torque, resumed, &mut s.stops);
+                resumed
+            }
+            _ => window,
+        };
         let tail_end = phases.yield_angle.is_none().then_some(phases.peak_index);
         s.window_samples(angle, torque, window, tail_end);
         let breaks = self.break_row(angle, s);
@@ -233,7 +303,8 @@ impl Detector {
         RowResult {
             status,
             n_samples: n,
-            window: Some((angle[window.start].to_f64(), angle[window.end - 1].to_f64())),
+            window: Some((angle[phases.window.start].to_f64(), angle[phases.window.end - 1].to_f64())),
+            tested_start: Some(angle[window.start].to_f64()),
             phases: Some(PhaseRow {
                 prevailing_torque: phases.prevailing_torque,
                 snug_angle: phases.snug_angle,

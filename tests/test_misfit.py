@@ -1,0 +1,104 @@
+"""Misfit is not a change: controller events inside the elastic window (a change of controller
+step, a pause the recorder did not sample, a relaxation dip and wind-up) are not called friction
+changes, and the real s01 control group gets few claims."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+import tightscan
+
+RATE = 0.075  # Nm/deg, elastic torque rate of the synthetic curves
+
+
+def _curve(n: int = 600, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rundown, then a straight elastic rise; 0.25 deg and 1 ms per sample, a little noise."""
+    rng = np.random.default_rng(seed)
+    angle = np.arange(n) * 0.25
+    torque = np.where(angle < 40.0, 0.5, 0.5 + RATE * (angle - 40.0)) + rng.normal(0.0, 0.004, n)
+    time = np.arange(n) * 0.001
+    return angle, torque, time
+
+
+def _table(curves: list[tuple[np.ndarray, np.ndarray, np.ndarray]], **extra: pa.Array) -> pa.Table:
+    lists = lambda k: pa.array([c[k] for c in curves], pa.list_(pa.float64()))  # noqa: E731
+    return pa.table({"tightening_id": list(range(len(curves))), "angle": lists(0), "torque": lists(1), "time": lists(2), **extra})
+
+
+def _with_relaxation(seed: int, at: int = 400, depth: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tool nearly stops at sample `at` (0.02 deg per sample for 11 samples): the torque
+    relaxes by `depth` Nm over 5 samples, then winds up again within 6, and the elastic line
+    goes on."""
+    rng = np.random.default_rng(seed)
+    steps = np.full(600, 0.25)
+    steps[at : at + 11] = 0.02
+    angle = np.concatenate([[0.0], np.cumsum(steps[1:])])
+    torque = np.where(angle < 40.0, 0.5, 0.5 + RATE * (angle - 40.0)) + rng.normal(0.0, 0.004, 600)
+    torque[at : at + 5] -= depth * np.linspace(0.2, 1.0, 5)
+    torque[at + 5 : at + 11] -= depth * np.linspace(0.8, 0.0, 6)
+    return angle, torque, np.arange(600) * 0.001
+
+
+def test_a_relaxation_dip_is_not_a_change() -> None:
+    curves = [_with_relaxation(seed) for seed in range(20)]
+    results = tightscan.detect_batch(_table(curves))
+    assert results["change_detected"].to_pylist() == [False] * 20
+    # The detectors test the window from where the torque has wound up again.
+    assert min(results["tested_start_angle"].to_pylist()) >= 399 * 0.25
+
+
+def test_a_friction_drop_is_still_found() -> None:
+    # A friction decrease drops the torque at once and goes on at a lower rate: not a relaxation.
+    curves = []
+    for seed in range(20):
+        angle, torque, time = _curve(seed=seed)
+        drop = angle >= 100.0
+        torque = torque - drop * 0.2 * (0.5 + RATE * (angle - 40.0) - 0.5)
+        curves.append((angle, torque, time))
+    results = tightscan.detect_batch(_table(curves))
+    assert results["change_detected"].to_pylist() == [True] * 20
+
+
+def test_an_unsampled_pause_starts_a_new_segment() -> None:
+    curves = []
+    for seed in range(10):
+        angle, torque, time = _curve(seed=seed)
+        # Flat before the pause, rising after it: one line through both would be a misfit.
+        torque = np.where(angle < 75.0, 0.5 + 0.01 * (angle - 40.0).clip(0), torque)
+        time = time + (angle >= 75.0) * 0.05  # the recorder stopped for 50 ms
+        curves.append((angle, torque, time))
+    results = tightscan.detect_batch(_table(curves))
+    assert all(a >= 75.0 for a in results["tested_start_angle"].to_pylist())
+    assert results["change_detected"].to_pylist() == [False] * 10
+
+
+def test_the_last_controller_step_is_tested() -> None:
+    angle, torque, time = _curve()
+    step = (angle >= 90.0).astype(np.int32)
+    table = _table([(angle, torque, time)], step=pa.array([step], pa.list_(pa.int32())))
+    results = tightscan.detect_batch(table)
+    assert results["tested_start_angle"][0].as_py() >= 90.0
+    assert results["status"][0].as_py() == "ok"
+
+
+def test_step_channel_errors() -> None:
+    angle, torque, time = _curve()
+    bad_type = _table([(angle, torque, time)], step=pa.array([angle], pa.list_(pa.float64())))
+    with pytest.raises(tightscan.SchemaError) as err:
+        tightscan.detect_batch(bad_type)
+    assert err.value.column == "step"
+    short = _table([(angle, torque, time)], step=pa.array([[0] * 10], pa.list_(pa.int32())))
+    status = tightscan.detect_batch(short)["status"][0].as_py()
+    assert status.startswith("length_mismatch: step")
+
+
+def test_s01_control_group_claims_are_bounded(rexroth_s01: pa.Table) -> None:
+    # s01 is a control group: no friction fault inside any tightening. The rule claimed a change
+    # in 99.4 % of the decided runs before the noise model and the controller-event handling;
+    # now in 8.6 %. The goal (at most 2 %) is not met yet; this guards the gain.
+    results = tightscan.detect_batch(rexroth_s01)
+    decided = [v for v in results["change_detected"].to_pylist() if v is not None]
+    assert len(decided) >= 3000
+    assert float(np.mean(decided)) <= 0.10

@@ -29,6 +29,7 @@ import tightscan
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 import independent_generator as ig  # noqa: E402
+from scoring import wilson  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -37,16 +38,6 @@ NOISES = [("white", "white", 0.0), ("ar1 0.5", "ar1", 0.5), ("ar1 0.85", "ar1", 
 RATES = [500.0, 2000.0, 10000.0]
 ENCODERS = [0.01, 0.1, 0.5]
 STRATEGIES = ["CST", "CSDT", "HDT"]
-
-
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    if n == 0:
-        return (math.nan, math.nan)
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return (c - h, c + h)
 
 
 def unit_noise(rng: np.random.Generator, n: int, colour: str, phi: float) -> np.ndarray:

@@ -1,0 +1,382 @@
+"""Close the loop on measured data: fit the declared tightening model, look for structure in its
+residuals, trace it to the effect the model lacks, add that effect, and report the error before
+and after, out of sample.
+
+Two levels (docs/diagnose-s01.md explains the method and what it found on real data):
+
+- **Within a tightening** (level 1). Per tightening ``j`` the declared model is the elastic line
+  ``T = a_j + b_j x`` over the elastic window of :func:`tightscan.detect_batch` (``x`` is the
+  clamp force when the table has it, else the angle) and the prevailing torque ``T = c_j`` over
+  a rundown stretch before snug. ``a_j, b_j, c_j`` are the tightening's own (nuisance)
+  parameters. A candidate effect adds regressors built from the data -- never from the measured
+  torque of the sample itself, only from the fitted torque and from the other channels -- with
+  *global* coefficients (physical constants shared by all tightenings: a delay, an inertia, a
+  friction law), or, where physics makes it so, per-tightening coefficients (the phase of a
+  run-out).
+- **Between tightenings** (level 2). The per-tightening parameters (torque rate, prevailing
+  torque, tightening angle) against tightening-level covariates found in the table (re-use
+  count, position, order in the sequence, date ...).
+
+Every comparison is out of sample: K-fold across tightenings (grouped so that one thread or part
+never sits on both sides) for global coefficients, and alternate blocks of samples within a
+tightening for per-tightening parameters, the declared model going through exactly the same
+protocol. A candidate is added when its gain is significant (one-sided test on per-tightening
+improvements, Bonferroni over the candidates of the round, ``alpha``) *and* practically relevant
+(``min_gain`` of the RMSE); the loop repeats until nothing significant remains.
+
+>>> import tightscan
+>>> curves, _ = tightscan.simulate(150, seed=5, fault_fraction=0.0, strategies=["CSDT", "HDT"],
+...                                torque_lowpass_ms=5.0)
+>>> result = tightscan.diagnose(curves.drop_columns(["strategy", "thread"]))
+>>> [e.name for e in result.effects], round(result.effects[0].parameters["tau_ms"]["value"])
+(['channel_delay'], 5)
+>>> result.rmse_after < 0.8 * result.rmse_before, result.unexplained_structure
+(True, False)
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+import types
+from typing import Any, Sequence
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..exceptions import InvalidParameterError
+from .prepare import _as_table, _prepare, F64
+from .fit import _Engine, _Fit, _folds, _one_sided_tests, _Term
+from .candidates import _candidates
+from .spectrum import _whiteness
+from .select import _grouped_median, _hints, _level2, _model_string, _partial_corr, _partial_residual, _quantiles
+from .prepare import load_table
+from .report import write_report
+from .result import EFFECT_NAMES, Diagnosis, Effect
+
+__all__ = ["diagnose", "Diagnosis", "Effect", "write_report", "load_table", "EFFECT_NAMES"]
+
+
+def diagnose(
+    data: Any,
+    *,
+    folds: int = 5,
+    alpha: float = 0.01,
+    min_gain: float = 0.01,
+    max_effects: int = 6,
+    group_by: Sequence[str] | str | None = "auto",
+    covariates: Sequence[str] | str | None = "auto",
+    spec_columns: Sequence[str] | str | None = "auto",
+    rundown_deg: float | None = None,
+    whiteness_tolerance: float = 0.05,
+    min_samples: int = 10,
+    parsimony: float = 0.8,
+    periodic_span_deg: float = 720.0,
+    seed: int = 0,
+) -> Diagnosis:
+    """Diagnose what the declared tightening model misses, out of sample.
+
+    ``data``: a tightening table in the contract layout (pyarrow, polars, anything with the
+    Arrow stream interface), or a path: a Rexroth export directory (``runs/*.json`` with an
+    optional ``labels.csv`` beside, or ``*.json``), a Parquet file or a directory of them.
+
+    Returns a :class:`Diagnosis`; ``to_dict()`` gives the JSON document (``model``,
+    ``rmse_before``, ``rmse_after`` [Nm, level-1 curve residual, out of sample], ``effects``
+    in the order added, ``unexplained_structure``, and details).
+
+    ``folds``: K of the K-fold split across tightenings, grouped by ``group_by`` (``"auto"``:
+    ``workpiece_id`` + ``workpiece_location`` when present, ...; ``None``: every tightening its
+    own group). ``alpha``: family-wise level per round (Bonferroni over its candidates).
+    ``min_gain``: smallest relative RMSE reduction an effect must bring. ``max_effects``: level-1
+    effects at most. ``covariates``: level-2 covariates (``"auto"``: every scalar metadata
+    column that is not an identifier, outcome or specification, plus the order of the tightening).
+    ``spec_columns``: columns whose cells form the level-2 baseline (``"auto"``: thread, target
+    torque, program ... when present). ``rundown_deg``: length of the rundown stretch (default:
+    the elastic window's angle span). ``periodic_span_deg``: how much rundown before that
+    stretch is searched for periodicities (run-out). ``whiteness_tolerance``: largest share of
+    the final residual variance a pooled AR(10) may predict before ``unexplained_structure``
+    is set. ``parsimony``: a term with per-tightening coefficients is added before a global one
+    only if the global one's gain is below this fraction of its gain. ``min_samples``: fewest
+    samples of a tightening's elastic window (and rundown stretch) to use it. ``seed``: of the
+    fold assignment.
+    """
+    started = time.perf_counter()
+    if folds < 2:
+        raise InvalidParameterError("folds must be at least 2", "folds")
+    if not 0 < alpha < 1:
+        raise InvalidParameterError("alpha must be in (0, 1)", "alpha")
+    table = _as_table(data)
+    s = _prepare(table, rundown_deg, min_samples, periodic_span_deg)
+    fold_t, group_cols = _folds(table, s.rows, folds, group_by, seed)
+    eng = _Engine(s, fold_t, folds)
+    g = eng.g
+    el = (s.seg == 0).astype(np.float64)
+    rd = (s.seg == 1).astype(np.float64)
+    # declared per-tightening columns: elastic intercept and slope, rundown level
+    xc = (s.x - g.sum(s.x * el)[s.gid] / np.maximum(g.sum(el)[s.gid], 1)) * el
+    xs = np.sqrt(g.sum(xc * xc) / np.maximum(g.sum(el), 1))[s.gid]
+    xn = xc / np.where(xs > 0, xs, 1.0)
+    declared: list[F64] = [el, xn, rd]
+    declared_labels = ["a (elastic intercept)", "b (elastic slope)", "c (prevailing torque)"]
+    x_scale_t = np.sqrt(g.sum(xc * xc) / np.maximum(g.sum(el), 1))
+
+    def assemble(model: dict[str, _Term]) -> tuple[list[F64], str, list[str], list[F64], dict[str, list[int]]]:
+        pc: list[F64] = list(declared)
+        pk = "declared"
+        zn: list[str] = []
+        zc: list[F64] = []
+        idx: dict[str, list[int]] = {}
+        for key, t in model.items():
+            if t.per_tightening:
+                idx[key] = list(range(len(pc), len(pc) + len(t.columns)))
+                pc = pc + t.columns
+                pk += f"|{key}@{t.tag}"
+            else:
+                idx[key] = list(range(len(zc), len(zc) + len(t.columns)))
+                zn = zn + [f"{key}:{lab}@{t.tag}" for lab in t.labels]
+                zc = zc + t.columns
+        return pc, pk, zn, zc, idx
+
+    def evaluate_with(model: dict[str, _Term], extra: _Term | None) -> tuple[_Fit, dict[str, list[int]]]:
+        both = dict(model)
+        if extra is not None:
+            both[extra.key] = extra
+        pc, pk, zn, zc, idx = assemble(both)
+        return eng.evaluate(pk, pc, zn, zc), idx
+
+    model: dict[str, _Term] = {}
+    base, _ = evaluate_with(model, None)
+    # weights: 1 / sigma_j^2 of the declared fit (robust to smooth structure: first differences)
+    d = np.r_[0.0, np.diff(base.resid)]
+    same = np.r_[False, (s.gid[1:] == s.gid[:-1]) & (s.seg[1:] == s.seg[:-1])]
+    absd = np.where(same, np.abs(d), np.nan)
+    sig_t = _grouped_median(absd, s.gid, s.n_tight) * 1.4826 / math.sqrt(2.0)
+    sig_t = np.where(np.isfinite(sig_t) & (sig_t > 0), sig_t, np.nanmedian(sig_t[sig_t > 0]) if np.any(sig_t > 0) else 1.0)
+    eng.weights_t = 1.0 / (sig_t * sig_t)
+    eng._cache.clear()
+    eng._pairs.clear()
+    base, _ = evaluate_with(model, None)
+    rmse_before = base.rmse
+    mse_before_t = base.mse_t.copy()
+    e_before = base.e_oos.copy()
+    current = base
+    current_idx: dict[str, list[int]] = {}
+    effects: list[Effect] = []
+    rounds: list[dict[str, Any]] = []
+    leftover_significant = False
+    periodogram_info: dict[str, Any] = {}
+    partial: dict[str, Any] = {}
+    build = 0
+    for round_no in range(max_effects + 1):
+        build += 1
+        periods = [t.info["period_deg"] for t in model.values() if "period_deg" in t.info]
+        terms, pinfo = _candidates(s, eng, current, declared, build, periods, _hints(model, current, current_idx))
+        if round_no == 0:
+            periodogram_info = pinfo
+        pc, pk, zn, zc, _ = assemble(model)
+        eng.keep_only(pk, zn)
+        cands_all = [t for key, t in terms.items() if key not in model]
+        tried: list[dict[str, Any]] = []
+        significant_terms: list[tuple[float, _Term, _Fit, dict[str, Any]]] = []
+        m = max(len(cands_all), 1)
+        for term in cands_all:
+            fit, _ = evaluate_with(model, term)
+            # relative improvement per tightening, in [-1, 1]: it cannot exceed 1, and a
+            # tightening that got more than twice as bad counts as -1 (no single curve decides)
+            u = np.clip((current.mse_t - fit.mse_t) / np.maximum(current.mse_t, 1e-300), -1.0, 1.0)
+            tests = _one_sided_tests(u)
+            gain = (current.rmse - fit.rmse) / current.rmse
+            # practical relevance: pooled, or in the typical tightening (a minority of curves
+            # with a large misfit of another cause, e.g. friction faults, must not hide it)
+            median_gain = float(np.median(1.0 - np.sqrt(fit.mse_t / np.maximum(current.mse_t, 1e-300))))
+            significant = tests["p_value"] < alpha / m and max(gain, median_gain) >= min_gain
+            tried.append(
+                {
+                    "name": term.name,
+                    "key": term.key,
+                    "per_tightening": term.per_tightening,
+                    "rmse": fit.rmse,
+                    "rmse_gain": gain,
+                    "median_tightening_rmse_gain": median_gain,
+                    "p_value": tests["p_value"],
+                    "sign_p_value": tests["sign_p_value"],
+                    "t_statistic": tests["t_statistic"],
+                    "fraction_improved": tests["fraction_improved"],
+                    "significant": significant,
+                }
+            )
+            if significant:
+                significant_terms.append((max(gain, median_gain), term, fit, tests | {"bonferroni_alpha": alpha / m, "candidates_in_round": m, "median_gain": median_gain}))
+        rounds.append({"round": round_no + 1, "rmse": current.rmse, "candidates": sorted(tried, key=lambda r: -r["rmse_gain"])})
+        if effects:
+            by_name = {r["name"]: r["rmse_gain"] for r in tried}
+            for alt in effects[-1].evidence.get("alternatives", []):
+                alt["rmse_gain_after_it"] = by_name.get(alt["name"])
+        if not significant_terms:
+            break
+        if round_no == max_effects:
+            leftover_significant = True
+            break
+        significant_terms.sort(key=lambda r: -r[0])
+        best = significant_terms[0]
+        parsimony_note = None
+        if best[1].per_tightening:
+            # Occam: per-tightening coefficients (2 per tightening) must beat the best global
+            # term clearly; else the global one goes first and the other must prove itself after
+            glob_terms = [r for r in significant_terms if not r[1].per_tightening]
+            if glob_terms and glob_terms[0][0] >= parsimony * best[0]:
+                parsimony_note = f"preferred to {best[1].name} (gain {best[0]:.4f}, per-tightening coefficients) by the parsimony rule"
+                best = glob_terms[0]
+        gain, term, fit, tests = best
+        pc_prev, pk_prev = pc, pk
+        corr_before = _partial_corr(eng, current, term, pk_prev, pc_prev)
+        model[term.key] = term
+        rmse_prev = current.rmse
+        # rebuild the model's regressors from the updated fit (a Gauss-Newton step for the
+        # terms built on the fitted torque or on a current estimate), until it settles
+        for _ in range(6):
+            build += 1
+            idx_now = assemble(model)[4]
+            hints_before = _hints(model, fit, idx_now)
+            fresh, _info = _candidates(s, eng, fit, declared, build, [t.info["period_deg"] for t in model.values() if "period_deg" in t.info], hints_before)
+            trial = {key: fresh.get(key, t) for key, t in model.items()}
+            rmse_old = fit.rmse
+            fit_try, idx_try = evaluate_with(trial, None)
+            if not fit_try.rmse <= rmse_old * (1 + 1e-3):
+                current_idx = assemble(model)[4]
+                break  # the rebuilt regressors do not fit better: keep the previous ones
+            model, fit, current_idx = trial, fit_try, idx_try
+            hints_after = _hints(model, fit, current_idx)
+            moved = any(abs(hints_after.get(k, 0.0) - v) > 0.005 * abs(v) for k, v in hints_before.items())
+            if abs(rmse_old - fit.rmse) < 1e-4 * fit.rmse and not moved:
+                break
+        evidence = {
+            "rmse_before": rmse_prev,
+            "rmse_gain": (rmse_prev - fit.rmse) / rmse_prev,
+            "median_tightening_rmse_gain": tests["median_gain"],
+            "p_value": tests["p_value"],
+            "sign_p_value": tests["sign_p_value"],
+            "t_statistic": tests["t_statistic"],
+            "fraction_of_tightenings_improved": tests["fraction_improved"],
+            "bonferroni_alpha": tests["bonferroni_alpha"],
+            "candidates_in_round": tests["candidates_in_round"],
+            "correlation_with_residual": corr_before,
+            "per_tightening_coefficients": term.per_tightening,
+            "folds": folds,
+            "tightenings": s.n_tight,
+            "round": round_no + 1,
+        } | {k: v for k, v in term.info.items()}
+        if parsimony_note:
+            evidence["parsimony"] = parsimony_note
+        # other candidates that explained much of the same residual: what the data cannot tell
+        # apart from the winner (their gain after it was added is filled in next round)
+        evidence["alternatives"] = [
+            {"name": r[1].name, "rmse_gain": r[0]} for r in significant_terms if r[1] is not term and r[0] >= 0.3 * gain
+        ]
+        partial[term.name] = _partial_residual(eng, s, model[term.key], fit, current_idx[term.key], pc_prev, current.resid)
+        effects.append(
+            Effect(
+                name=term.name,
+                description=term.description,
+                level="within_tightening",
+                significant=True,
+                parameters={},
+                rmse_after=fit.rmse,
+                evidence=evidence,
+            )
+        )
+        current = fit
+    final = current
+    # parameters of the added effects from the final model
+    for eff, key in zip(effects, list(model)):
+        eff.parameters = model[key].parameters(final, current_idx[key])
+    white = _whiteness(s, final.resid)
+    unexplained = bool(white["ar_r2"] > whiteness_tolerance or leftover_significant)
+
+    # level 2
+    level2, l2_details, l2_plots = _level2(table, s, final, fold_t, folds, alpha, min_gain, covariates, spec_columns, group_cols, x_scale_t)
+    effects_all = effects + level2
+
+    model_str = _model_string(s, effects)
+    per_t = pa.table(
+        {
+            "tightening_id": pa.array(s.ids),
+            "n_samples": pa.array(g.count.astype(np.int64)),
+            "rmse_before": pa.array(np.sqrt(mse_before_t)),
+            "rmse_after": pa.array(np.sqrt(final.mse_t)),
+            "torque_rate": pa.array(final.pcoef[:, 1] / np.where(x_scale_t > 0, x_scale_t, 1.0)),
+            "prevailing_torque": pa.array(np.where(g.sum(rd) > 0, g.sum((s.y - final.resid) * rd) / np.maximum(g.sum(rd), 1), np.nan)),
+            "noise_sd": pa.array(sig_t),
+        }
+    )
+    rb, ra = np.sqrt(mse_before_t), np.sqrt(final.mse_t)
+    details: dict[str, Any] = {
+        "declared_model": {
+            "elastic": "T = a_j + b_j * " + ("clamp_force (smoothed along the angle)" if s.has_clamp else "angle (dequantised)"),
+            "rundown": "T = c_j",
+            "per_tightening_parameters": declared_labels,
+        },
+        "tightenings": s.n_tight,
+        "tightenings_in_table": table.num_rows,
+        "samples": int(len(s.y)),
+        "elastic_samples": int(el.sum()),
+        "rundown_samples": int(rd.sum()),
+        "speed_source": s.speed_source,
+        "clamp_force": s.has_clamp,
+        "folds": folds,
+        "group_by": group_cols,
+        "alpha": alpha,
+        "min_gain": min_gain,
+        "per_tightening_rmse": {
+            "before": _quantiles(rb),
+            "after": _quantiles(ra),
+            "fraction_improved": float(np.mean(ra < rb)),
+        },
+        "noise_floor_estimate": float(np.sqrt(np.sum(g.count * sig_t**2) / np.sum(g.count))),
+        "whiteness": white,
+        "periodogram": periodogram_info,
+        "rounds": rounds,
+        "level2": l2_details,
+        "seconds": time.perf_counter() - started,
+    }
+    plot = {
+        "e_before": e_before,
+        "e_after": final.e_oos,
+        "gid": s.gid,
+        "seg": s.seg,
+        "pos": s.pos_in_window,
+        "theta": s.theta,
+        "sigma_t": sig_t,
+        "ids": s.ids,
+        "rb": rb,
+        "ra": ra,
+        "terms": [(t.name, t.columns if not t.per_tightening else []) for t in model.values()],
+        "level2": l2_plots,
+        "partial": partial,
+        "periodogram": periodogram_info.get("_curve"),
+    }
+    periodogram_info.pop("_curve", None)
+    return Diagnosis(
+        model=model_str,
+        rmse_before=rmse_before,
+        rmse_after=final.rmse,
+        effects=effects_all,
+        unexplained_structure=unexplained,
+        details=details,
+        per_tightening=per_t,
+        plot_data=plot,
+    )
+
+
+class _CallableModule(types.ModuleType):
+    """``tightscan.diagnose`` is both this module and the function exported under its name; an
+    import of the submodule (e.g. pytest collecting its doctests) rebinds the package attribute
+    to the module, so the module forwards calls to the function."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Diagnosis:
+        return diagnose(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -1,0 +1,464 @@
+"""Step 3, candidates: the effects the declared model may lack, each as regressors built from the
+data (never from the measured torque of the sample itself), with its physical name."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from .result import EFFECT_NAMES
+from .prepare import _Groups, _Samples, B8, F64
+from .fit import _Engine, _Fit, _Term
+from .spectrum import _long_stretch, _periodogram, _poly_fit
+
+
+# ---------------------------------------------------------------------------------------------
+# Candidates
+
+
+def _fitted_declared(s: _Samples, fit: _Fit, declared: list[F64]) -> F64:
+    th = np.zeros(len(s.y))
+    for k, col in enumerate(declared):
+        th += col * fit.pcoef[s.gid, k]
+    return th
+
+
+class _Grid:
+    """Samples of one segment laid out as (row = tightening, column = sample), rows sorted by
+    length (longest first) so that the rows still running at a column are a prefix."""
+
+    def __init__(self, s: _Samples, segment: int) -> None:
+        idx = np.flatnonzero(s.seg == segment)
+        g = s.gid[idx]
+        starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]]) if len(idx) else np.zeros(0, dtype=np.int64)
+        lens = np.diff(np.r_[starts, len(idx)])
+        order = np.argsort(-lens, kind="stable")
+        row_of_run = np.empty(len(starts), dtype=np.int64)
+        row_of_run[order] = np.arange(len(starts))
+        self.idx = idx
+        self.lens = lens[order]
+        self.tg = g[starts][order]
+        self.rank = np.arange(len(idx)) - np.repeat(starts, lens)
+        self.row = np.repeat(row_of_run, lens)
+        self.n_rows = len(starts)
+        self.width = int(lens.max()) if len(lens) else 0
+        # live[j]: number of rows longer than j (a prefix, rows being sorted by length)
+        self.live = np.searchsorted(-self.lens, -np.arange(self.width), side="left").astype(np.int64)
+
+    def grid(self, v: npt.NDArray[Any], fill: float = 0.0) -> npt.NDArray[Any]:
+        shape = (self.n_rows, self.width) + v.shape[1:]
+        out = np.full(shape, fill, dtype=np.float64)
+        out[self.row, self.rank] = v[self.idx]
+        return out
+
+    def factors(self, t: F64, tau: float) -> tuple[F64, F64]:
+        """Per (row, column) decay a = exp(-dt / tau) and ramp factor tau (1 - a) / dt, with dt
+        from the previous column (a = 1, factor 0 where dt <= 0: the state holds)."""
+        TT = self.grid(t)
+        dt = np.zeros_like(TT)
+        dt[:, 1:] = TT[:, 1:] - TT[:, :-1]
+        return _decay(dt, tau)
+
+
+def _decay(dt: F64, tau: float) -> tuple[F64, F64]:
+    ok = dt > 0
+    a = np.where(ok, np.exp(-np.where(ok, dt, 1.0) / tau), 1.0)
+    f = np.where(ok, tau * (1 - a) / np.where(ok, dt, 1.0), 0.0)
+    return a, f
+
+
+def _lowpass_parts(s: _Samples, X: F64, x_pre: F64, tau: float) -> tuple[F64, F64, F64, F64]:
+    """A first-order low-pass of the input path ``X`` over each elastic window, exact for inputs
+    linear between samples (a transducer filter), in parts that are linear in the recorded
+    state at the anchors: the sample just before the window and the end of each pause.
+
+    Returns per sample (0 outside the elastic zone): the decay D since the last anchor, the
+    anchor's input value x_r and measured torque y_r, and the lag R of ``X`` started settled at
+    the anchor, so that ``LP[X] - X = D (y_r - x_r) + R`` when the state at the anchor is y_r.
+    """
+    n = len(X)
+    D_out, xr_out, yr_out, R_out = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    if s.t is None or tau <= 0 or not np.any(s.seg == 0):
+        return D_out, xr_out, yr_out, R_out
+    gr = _Grid(s, 0)
+    XX, TT = gr.grid(X), gr.grid(s.t)
+    a, f = gr.factors(s.t, tau)
+    tg = gr.tg
+    RY, RT = gr.grid(s.restart_y, np.nan), gr.grid(s.restart_t, np.nan)
+    has_pre = np.isfinite(s.pre_t[tg]) & np.isfinite(s.pre_y[tg])
+    # the first column: from the sample before the window (an anchor), else settled
+    x_prev0 = np.where(has_pre, x_pre[tg], XX[:, 0])
+    a[:, 0], f[:, 0] = _decay(TT[:, 0] - np.where(has_pre, s.pre_t[tg], TT[:, 0]), tau)
+    dX = np.zeros_like(XX)
+    dX[:, 0] = XX[:, 0] - x_prev0
+    dX[:, 1:] = XX[:, 1:] - XX[:, :-1]
+    restart = np.isfinite(RY)
+    rr, rc = np.nonzero(restart)
+    # after a pause the state restarts from the recorded torque at its end
+    a[rr, rc], f[rr, rc] = _decay(TT[rr, rc] - RT[rr, rc], tau)
+    restart_cols = set(int(j) for j in np.unique(rc))
+    decay = np.where(has_pre, 1.0, 0.0)
+    x_r = x_prev0.copy()
+    y_r = np.where(has_pre, s.pre_y[tg], 0.0)
+    lag = np.zeros(gr.n_rows)
+    outs = [np.zeros((gr.n_rows, gr.width)) for _ in range(4)]
+    for j in range(gr.width):
+        m = int(gr.live[j])
+        if j in restart_cols:
+            r = restart[:m, j]
+            prev = XX[:m, j - 1] if j > 0 else x_prev0[:m]
+            x_r[:m] = np.where(r, prev, x_r[:m])
+            y_r[:m] = np.where(r, RY[:m, j], y_r[:m])
+            decay[:m] = np.where(r, 1.0, decay[:m])
+            lag[:m] = np.where(r, 0.0, lag[:m])
+        decay[:m] *= a[:m, j]
+        lag[:m] = a[:m, j] * lag[:m] - dX[:m, j] * f[:m, j]
+        outs[0][:m, j] = decay[:m]
+        outs[1][:m, j] = x_r[:m]
+        outs[2][:m, j] = y_r[:m]
+        outs[3][:m, j] = lag[:m]
+    for dst, src in zip((D_out, xr_out, yr_out, R_out), outs):
+        dst[gr.idx] = src[gr.row, gr.rank]
+    return D_out, xr_out, yr_out, R_out
+
+
+def _lowpass_filter_many(s: _Samples, cols: list[F64], tau: float) -> list[F64]:
+    """``LP_tau`` of many regressors at once, per segment, each started settled (exact for
+    inputs linear between samples): one pass over the samples for all columns."""
+    if s.t is None or tau <= 0:
+        return cols
+    Z = np.column_stack(cols)
+    out = Z.copy()
+    for segment in (0, 1):
+        if not np.any(s.seg == segment):
+            continue
+        gr = _Grid(s, segment)
+        XX = gr.grid(Z)
+        a, f = gr.factors(s.t, tau)
+        dX = np.zeros_like(XX)
+        dX[:, 1:] = XX[:, 1:] - XX[:, :-1]
+        dev = np.zeros((gr.n_rows, Z.shape[1]))
+        D = np.zeros_like(XX)
+        for j in range(1, gr.width):
+            m = int(gr.live[j])
+            dev[:m] = a[:m, j, None] * dev[:m] - dX[:m, j] * f[:m, j, None]
+            D[:m, j] = dev[:m]
+        out[gr.idx] = Z[gr.idx] + D[gr.row, gr.rank]
+    return [out[:, i].copy() for i in range(out.shape[1])]
+
+
+def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float) -> F64:
+    """``(LP_tau[T_hat] - T_hat) / tau`` (about -dT_hat/dt) for the declared line refitted
+    exactly under a low-pass of ``tau``: with the parts of :func:`_lowpass_parts`,
+    y = a + b x + D (y_r - a - b x_r) + b R is linear in (a, b) given tau."""
+    el = (s.seg == 0).astype(np.float64)
+    rd = 1.0 - el
+    first = np.flatnonzero(np.r_[True, (s.gid[1:] != s.gid[:-1]) | (s.seg[1:] != s.seg[:-1])] & (s.seg == 0))
+    x_first = np.full(s.n_tight, np.nan)
+    th_first = np.full(s.n_tight, np.nan)
+    x_first[s.gid[first]] = s.x[first]
+    th_first[s.gid[first]] = s.theta[first]
+    x_pre = np.nan_to_num(np.where(np.isfinite(s.pre_theta), x_first + slope_x * (s.pre_theta - th_first), x_first))
+    D, x_r, y_r, R = _lowpass_parts(s, s.x, x_pre, tau)
+    mean_x = (g.sum(s.x * el) / np.maximum(g.sum(el), 1))[s.gid]
+    col_a = (1.0 - D) * el
+    col_b = ((s.x - mean_x) - D * (x_r - mean_x) + R) * el
+    target = s.y - D * y_r
+    coef, _ = g.fit([col_a, col_b, rd], [target])
+    a_t, b_t = coef[s.gid, 0, 0], coef[s.gid, 1, 0]
+    dev = D * (y_r - a_t - b_t * (x_r - mean_x)) + b_t * R
+    out: F64 = dev / tau
+    return out
+
+
+def _candidates(
+    s: _Samples, eng: _Engine, fit: _Fit, declared: list[F64], tag: int, model_periods: Sequence[float], hints: dict[str, float]
+) -> tuple[dict[str, _Term], dict[str, Any]]:
+    """Every candidate term, its regressors built from the fit (fitted torque, slopes) and the
+    channels other than the measured torque; keyed by a stable key."""
+    g = eng.g
+    gid = s.gid
+    el = s.seg == 0
+    rd = s.seg == 1
+    elf, rdf = el.astype(np.float64), rd.astype(np.float64)
+    th = _fitted_declared(s, fit, declared)
+    # elastic slope dT/dx per tightening, and dT/dtheta per sample
+    xc = (s.x - g.sum(s.x * elf)[gid] / np.maximum(g.sum(elf)[gid], 1)) * elf
+    xs = np.sqrt(g.sum(xc * xc) / np.maximum(g.sum(elf), 1))
+    b_t = fit.pcoef[:, 1] / np.where(xs > 0, xs, 1.0)
+    if s.has_clamp:
+        dth = np.r_[np.diff(s.x), 0.0]
+        dang = np.r_[np.diff(s.theta), 0.0]
+        ok = el & np.r_[(gid[1:] == gid[:-1]) & (s.seg[1:] == 0), False] & (np.abs(dang) > 0)
+        num = g.sum(np.where(ok, dth * dang, 0.0))
+        den = g.sum(np.where(ok, dang * dang, 0.0))
+        k_t = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+        dT_dtheta = b_t[gid] * k_t[gid] * elf
+    else:
+        k_t = np.ones(s.n_tight)
+        dT_dtheta = b_t[gid] * elf
+    tp = np.where(g.sum(rdf) > 0, fit.pcoef[:, 2], s.prevailing)
+    tp = np.where(np.isfinite(tp), tp, 0.0)
+    cands: dict[str, _Term] = {}
+
+    def glob(name: str, cols: list[F64], labels: list[str], params: Callable[[_Fit, list[int]], dict[str, Any]], info: dict[str, Any] | None = None, description: str | None = None) -> None:
+        cols = [np.where(np.isfinite(c), c, 0.0) for c in cols]
+        if not any(np.any(c != 0) for c in cols):
+            return
+        info = dict(info or {})
+        cands[name] = _Term(name, description or EFFECT_NAMES[name], False, labels, cols, params, info, name, tag)
+
+    def pv(fit2: _Fit, idx: list[int], scale: float = 1.0) -> dict[str, float]:
+        return {"value": float(fit2.beta[idx[0]] * scale), "se": float(fit2.se[idx[0]] * abs(scale))}
+
+    if s.omega is not None:
+        om = np.maximum(np.abs(s.omega), 6.0)  # 1 rpm floor
+        ref = float(np.median(om[el]))
+        lnv = np.log(om / ref)
+        # speed-dependent friction: the friction torque above the prevailing level scales
+        fr = (th - tp[gid]) * elf
+        spread = float(np.std(lnv[el]))
+
+        def p_speed(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+            return {
+                "a_eff": pv(f2, idx),
+                "reference_speed_rpm": ref / 6.0,
+                "law": "T - T_prevailing = (T0 - T_prevailing) (1 + a_eff ln(v / v_ref))",
+                "note": "a_eff = a * (friction share of the torque per clamp force, about 0.85-0.9 for ISO metric threads): the lead term 0.16 P does not depend on speed",
+            }
+
+        if spread > 0.01:
+            glob("speed_dependent_friction", [fr * lnv], ["a_eff"], p_speed, {"speed_source": s.speed_source, "ln_speed_sd_in_window": spread})
+        lnr = lnv * rdf
+        if float(np.std(lnv[rd])) > 0.01 if np.any(rd) else False:
+
+            def p_sp(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+                return {"a_prevailing": pv(f2, idx), "reference_speed_rpm": ref / 6.0}
+
+            glob("speed_dependent_prevailing_torque", [tp[gid] * lnr], ["a_prevailing"], p_sp)
+        # channel delay: recorded T(t - tau) = T - tau dT/dt (first order); once tau is known
+        # roughly, the fitted torque path through a first-order low-pass with that tau
+        tau0 = hints.get("tau_s", 0.0)
+        if tau0 > 1e-5 and s.t is not None:
+            zd = _lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), tau0)
+            form = f"low-pass path, refined at tau = {1000 * tau0:.3g} ms"
+        else:
+            zd = -dT_dtheta * s.omega
+            form = "first order: -dT_hat/dt"
+
+        def p_delay(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+            return {"tau_ms": pv(f2, idx, 1000.0)}
+
+        lag = _lag_xcorr(s, fit.resid, th, el)
+        glob("channel_delay", [zd], ["tau"], p_delay, {"cross_correlation_lag": lag, "regressor": form})
+    if s.alpha is not None:
+
+        def p_inertia(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+            return {"J_kg_m2": pv(f2, idx)}
+
+        glob("inertia", [s.alpha], ["J"], p_inertia, {"acceleration_source": "speed channel (first difference)" if s.speed_source == "speed channel" else "angle/time (second derivative)"})
+    # curvature / pressure-dependent friction: b L w^2 in the elastic zone, w = (x - x_s) / L the
+    # position in the window (x_s its start, L its span in x): kappa is the relative change of
+    # the slope across half the window (slope at the end / at the start = 1 + 2 kappa)
+    x_lo = np.full(s.n_tight, np.inf)
+    x_hi = np.full(s.n_tight, -np.inf)
+    np.minimum.at(x_lo, gid[el], s.x[el])
+    np.maximum.at(x_hi, gid[el], s.x[el])
+    span_x = np.where(x_hi > x_lo, x_hi - x_lo, np.nan)
+    w = (s.x - x_lo[gid]) / span_x[gid]
+    zq = np.nan_to_num(b_t[gid] * span_x[gid] * w * w) * elf
+    name_q = "pressure_dependent_friction" if s.has_clamp else "elastic_curvature"
+    b_base = b_t.copy()
+    x0 = np.zeros(s.n_tight) if s.has_clamp else s.phases["snug_angle"]
+    x_ref = s.xf_ref  # x - x0 at the end of the tightening
+
+    def p_curv(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+        kappa = float(f2.beta[idx[0]])
+        b_new = f2.pcoef[:, 1] / np.where(xs > 0, xs, 1.0)
+        # quadratic in x_F = x - x0: Q x_F^2 + B x_F; pressure law: B = K0 (1 - c), Q = K0 c / x_ref
+        q = kappa * b_base / span_x
+        bb = b_new + 2 * q * (x0 - x_lo)
+        den = bb + q * x_ref
+        ok = np.isfinite(q) & np.isfinite(den) & (den > 0) & (x_ref > 0) & (x0 <= x_lo)
+        cprime = np.where(ok, q * x_ref / np.where(ok, den, 1.0), np.nan)
+        c_med = float(np.nanmedian(cprime)) if np.any(ok) else float("nan")
+        out: dict[str, Any] = {
+            "kappa": pv(f2, idx),
+            "slope_change_across_window": {"value": 2 * kappa, "se": 2 * float(f2.se[idx[0]]), "unit": "relative (end / start - 1)"},
+            "pressure_coefficient": {
+                "value": c_med,
+                "se": abs(c_med) * float(f2.se[idx[0]]) / max(abs(kappa), 1e-300),
+                "tightenings": int(np.sum(ok)),
+            },
+            "law": "T - T_p = K0 F (1 + c_eff (F / F_end - 1)), F_end the clamp force at the end of the tightening",
+        }
+        if not s.has_clamp:
+            out["note"] = (
+                "without clamp force F is taken proportional to the angle past snug: the bend may be friction "
+                "changing with pressure or a joint stiffness changing with load, which the data cannot separate"
+            )
+        else:
+            out["note"] = "c_eff = c * (friction share of the torque per clamp force, about 0.85-0.9 for ISO metric threads)"
+        return out
+
+    glob(name_q, [zq], ["kappa"], p_curv)
+    # time within the tightening (additive drift, relative to the tightening's peak torque)
+    if s.t is not None:
+
+        def p_time(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+            return {"drift_per_s_relative": pv(f2, idx)}
+
+        glob("time_drift", [s.scale[gid] * s.t], ["drift"], p_time)
+    # program steps: per step of the tool program (those seen in the elastic window of at least
+    # 5 % of the tightenings), an offset, a change of the torque rate from the step's start and
+    # a short transient after it (global coefficients, relative to the tightening's scale)
+    if s.step is not None and s.step_theta is not None and s.step_t is not None:
+        cols = []
+        labels: list[str] = []
+        for seg_id, seg_mask in ((0, el), (1, rd)):
+            # a step's terms are identified only against another step in the same stretch: keep
+            # the steps that share a stretch with another one in enough tightenings, and measure
+            # offsets against the most common of them
+            steps_here = np.unique(s.step[seg_mask])
+            n_steps_t = np.zeros(s.n_tight)
+            for v in steps_here:
+                n_steps_t += np.bincount(gid[seg_mask & (s.step == v)], minlength=s.n_tight) > 0
+            mixed = n_steps_t > 1
+            shared = [v for v in steps_here if np.sum(mixed & (np.bincount(gid[seg_mask & (s.step == v)], minlength=s.n_tight) > 0)) >= max(10, 0.05 * s.n_tight)]
+            if len(shared) < 2:
+                continue
+            counts = [int(np.sum(seg_mask & (s.step == v))) for v in shared]
+            reference = shared[int(np.argmax(counts))]
+            where = "elastic" if seg_id == 0 else "rundown"
+            for v in shared:
+                ind = (seg_mask & (s.step == v)).astype(np.float64)
+                if v != reference:
+                    cols.append(s.scale[gid] * ind)
+                    labels.append(f"{where}, step {v}: offset from step {reference}")
+                if seg_id == 0:
+                    cols.append(dT_dtheta * s.step_theta * ind)
+                    labels.append(f"{where}, step {v}: torque-rate change")
+                    for tau_ms in (5.0, 25.0):
+                        cols.append(s.scale[gid] * np.exp(-s.step_t / (tau_ms / 1000.0)) * ind)
+                        labels.append(f"{where}, step {v}: transient {tau_ms:g} ms")
+        if cols:
+            step_labels = list(labels)
+
+            def p_step(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+                out: dict[str, Any] = {}
+                for lab, i in zip(step_labels, idx):
+                    unit = "relative to the torque rate" if "rate" in lab else "fraction of the peak torque"
+                    out[lab] = {"value": float(f2.beta[i]), "se": float(f2.se[i]), "unit": unit}
+                return out
+
+            glob("program_step", cols, labels, p_step)
+    # periodicities: once per revolution always, other periods from the averaged periodogram of
+    # the long rundown stretch. Each tightening's modulation (amplitude and phase) is estimated on
+    # that stretch and predicted into the samples of the model, which it has not seen.
+    if "long" not in eng.memo:
+        eng.memo["long"] = _long_stretch(s)
+        eng.memo["periodogram"] = _periodogram(eng.memo["long"], s.n_tight)
+    lg = eng.memo["long"]
+    pinfo = dict(eng.memo["periodogram"])
+    periods = [360.0] + [p["period_deg"] for p in pinfo.get("peaks", []) if abs(p["period_deg"] - 360.0) > 36.0][:2]
+    for period in list(model_periods):
+        if all(abs(period - q) > 1e-9 for q in periods):
+            periods.append(period)
+    for period in periods:
+        if lg is None:
+            break
+        usable = (lg.span >= 0.5 * period) & (lg.count >= 30)
+        if usable.sum() < max(10, 0.05 * s.n_tight):
+            continue
+        name = "runout" if period == 360.0 else "periodic_disturbance"
+        key = name if period == 360.0 else f"{name}:{period:.6g}"
+        memo_key = ("period", period)
+        if memo_key not in eng.memo:
+            sel = usable[lg.gid]
+            ph_l = 2 * math.pi * lg.theta[sel] / period
+            lev = lg.level[lg.gid[sel]]
+            eng.memo[memo_key] = _poly_fit(lg.gid[sel], lg.theta[sel], s.long_y[sel], s.n_tight, [lev * np.sin(ph_l), lev * np.cos(ph_l)])
+        _, coef, var = eng.memo[memo_key]
+        c1 = np.nan_to_num(coef[:, 3])
+        c2 = np.nan_to_num(coef[:, 4])
+        v1, v2 = var[:, 3], var[:, 4]
+        ph = 2 * math.pi * s.theta / period
+        z = th * (c1[gid] * np.sin(ph) + c2[gid] * np.cos(ph))
+        ok = usable & np.isfinite(v1 + v2) & (v1 + v2 > 0)
+        amp = np.sqrt(c1**2 + c2**2)
+        w = np.zeros(s.n_tight)
+        w[ok] = 1.0 / (v1[ok] + v2[ok]) ** 2
+        r2 = float(np.sum(w[ok] * (amp[ok] ** 2 - v1[ok] - v2[ok])) / np.sum(w[ok])) if ok.any() else float("nan")
+        r2_se = float(np.sqrt(np.sum(w[ok] ** 2 * (2 * (v1[ok] + v2[ok]) ** 2 + 2 * amp[ok] ** 2 * (v1[ok] + v2[ok])))) / np.sum(w[ok])) if ok.any() else float("nan")
+        r_hat = math.sqrt(max(r2, 0.0))
+        snr = float(np.median(amp[ok] / np.sqrt((v1[ok] + v2[ok]) / 2))) if ok.any() else float("nan")
+
+        def p_per(f2: _Fit, idx: list[int], period: float = period, r_hat: float = r_hat, r2_se: float = r2_se, n_ok: int = int(ok.sum()), med_amp: float = float(np.median(amp[ok])) if ok.any() else float("nan")) -> dict[str, Any]:
+            return {
+                "period_deg": period,
+                "amplitude": {"value": r_hat, "se": r2_se / (2 * r_hat) if r_hat > 0 else float("nan")},
+                "kappa": {"value": float(f2.beta[idx[0]]), "se": float(f2.se[idx[0]])},
+                "amplitude_median_per_tightening": med_amp,
+                "tightenings_with_a_long_rundown": n_ok,
+                "law": "T (1 + r sin(2 pi theta / period + phi_j)), phase phi_j per tightening",
+                "note": "r and phi_j from the rundown before the declared stretch; kappa (about 1 when the modulation "
+                "found there is the one in the rest of the curve; below 1 by the noise of the per-tightening estimates) "
+                "scales its prediction into the model's samples",
+            }
+
+        glob(
+            name,
+            [z],
+            ["kappa"],
+            p_per,
+            {"period_deg": period, "median_amplitude_snr_in_rundown": snr},
+            EFFECT_NAMES[name] if name == "runout" else f"periodic modulation of the torque with a period of {period:.1f} deg",
+        )
+        if key != name:
+            cands[key] = cands.pop(name)
+            cands[key].key = key
+    tau_lp = hints.get("tau_s", 0.0)
+    if tau_lp > 0:
+        # the recorded torque is the transducer's low-pass of everything: so are the regressors
+        todo = [t for t in cands.values() if not t.per_tightening and t.name != "channel_delay"]
+        flat = [c for t in todo for c in t.columns]
+        if flat:
+            filtered = _lowpass_filter_many(s, flat, tau_lp)
+            i = 0
+            for t in todo:
+                t.columns = filtered[i : i + len(t.columns)]
+                i += len(t.columns)
+                t.info["filtered_by_channel_low_pass_ms"] = 1000 * tau_lp
+    return cands, pinfo
+
+
+def _lag_xcorr(s: _Samples, resid: F64, th: F64, el: B8, max_lag: int = 12) -> dict[str, Any]:
+    """Lag (samples) at which the fitted torque, shifted, best explains the residual in the
+    elastic zone: the residual of a delayed channel looks like T_hat(t - L) - T_hat(t)."""
+    n = len(resid)
+    best = (0.0, 0)
+    out = []
+    for lag in range(1, max_lag + 1):
+        i = np.arange(lag, n)
+        ok = el[i] & el[i - lag] & (s.gid[i] == s.gid[i - lag])
+        d = th[i - lag] - th[i]
+        r = resid[i]
+        dd, rr = d[ok], r[ok]
+        den = float(np.sqrt(np.sum(dd * dd) * np.sum(rr * rr)))
+        c = float(np.sum(dd * rr) / den) if den > 0 else 0.0
+        out.append(c)
+        if c > best[0]:
+            best = (c, lag)
+    dt = None
+    if s.t is not None:
+        dts = np.diff(s.t)[(np.diff(s.gid) == 0)]
+        dt = float(np.median(dts[dts > 0])) if np.any(dts > 0) else None
+    return {
+        "best_lag_samples": best[1],
+        "best_lag_ms": best[1] * dt * 1000 if dt else None,
+        "correlation": best[0],
+        "by_lag": out,
+    }

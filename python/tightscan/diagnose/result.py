@@ -1,0 +1,110 @@
+"""What the residual loop reports: the effects it named, with their evidence, and the whole
+diagnosis (RMSE before and after, the spectrum, level-2 findings), as plain data and JSON."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from .prepare import PathLike
+
+#: Stable names of the level-1 (within-tightening) effects the loop can name, with what they
+#: mean. Level-2 effects are named ``<parameter>_vs_<covariate>``.
+EFFECT_NAMES: dict[str, str] = {
+    "speed_dependent_friction": "friction torque changes with the tool speed: T (1 + a ln(v / v_ref)) in the elastic zone",
+    "speed_dependent_prevailing_torque": "the rundown (prevailing) torque changes with the tool speed",
+    "channel_delay": "the torque channel lags (transducer low-pass or a time offset between channels): T(t - tau)",
+    "inertia": "torque that accelerates rotating parts is recorded: J * angular acceleration",
+    "pressure_dependent_friction": "friction changes with clamp force: the torque-force line bends (needs clamp force)",
+    "elastic_curvature": "the torque-angle line bends: pressure-dependent friction or progressive joint stiffness (not separable without clamp force)",
+    "runout": "once-per-revolution modulation of the torque (eccentric socket or spindle, misaligned transducer)",
+    "periodic_disturbance": "a periodic modulation of the torque over the angle at another period (gears, thread lead ...)",
+    "program_step": "speed step / program step transient: the torque is offset while the tool program is in a given step",
+    "time_drift": "the torque drifts with time within the tightening (relaxation, temperature)",
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+
+
+@dataclass
+class Effect:
+    """One effect tried and added by the loop (level 1) or found between tightenings (level 2)."""
+
+    name: str
+    description: str
+    level: str
+    significant: bool
+    parameters: dict[str, Any]
+    rmse_after: float
+    evidence: dict[str, Any]
+    rmse_unit: str = "Nm"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "description": self.description,
+            "level": self.level,
+            "significant": self.significant,
+            "parameters": self.parameters,
+            "rmse_after": self.rmse_after,
+            "rmse_unit": self.rmse_unit,
+            "evidence": self.evidence,
+        }
+
+
+@dataclass
+class Diagnosis:
+    """What :func:`diagnose` found. ``to_dict()`` is the JSON document of the CLI."""
+
+    model: str
+    rmse_before: float
+    rmse_after: float
+    effects: list[Effect]
+    unexplained_structure: bool
+    details: dict[str, Any] = field(default_factory=dict)
+    per_tightening: pa.Table | None = None
+    plot_data: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "model": self.model,
+            "rmse_before": self.rmse_before,
+            "rmse_after": self.rmse_after,
+            "effects": [e.to_dict() for e in self.effects],
+            "unexplained_structure": self.unexplained_structure,
+        }
+        out.update(self.details)
+        doc: dict[str, Any] = _jsonable(out)
+        return doc
+
+    def to_json(self, path: PathLike | None = None, indent: int = 2) -> str:
+        text = json.dumps(self.to_dict(), indent=indent, allow_nan=False)
+        if path is not None:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            Path(path).write_text(text + "\n")
+        return text
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    return obj

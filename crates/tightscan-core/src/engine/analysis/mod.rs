@@ -161,9 +161,26 @@ fn after_unsampled_stop<T: Sample>(torque: &[T], window: ElasticWindow, time: Op
     }
 }
 
-/// The recorded angle `x` with its encoder quantisation averaged out, into `out`: a centred
-/// moving average over about two encoder steps' worth of samples (at most 65), narrowed
-/// symmetrically at the ends so a straight line passes unchanged. Whitening amplifies what
+/// True when the steps of `x` take at least two multiples of `resolution`, the rarer in at least
+/// 5 % of the steps.
+fn sawtooth(x: &[f64], resolution: f64) -> bool {
+    let mut counts = [0usize; 8];
+    let mut steps = 0usize;
+    for w in x.windows(2) {
+        let q = ((w[1] - w[0]) / resolution).round();
+        if (0.0..8.0).contains(&q) {
+            counts[q as usize] += 1;
+            steps += 1;
+        }
+    }
+    counts.sort_unstable();
+    steps > 0 && counts[6] * 20 >= steps
+}
+
+/// The recorded angle `x` with its encoder quantisation averaged out, into `out`, where the
+/// encoder is coarse against the angle per sample: a centred moving average over about two
+/// encoder steps' worth of samples (at most 65), narrowed
+/// symmetrically at the window's ends so a straight line passes unchanged. Whitening amplifies what
 /// changes from sample to sample, and quantisation error is such a change: on the raw angle a
 /// whitened regressor is mostly encoder steps, and the block slopes mostly noise. The first
 /// `n` samples (the window) set the width; the rest follow with the same.
@@ -171,21 +188,33 @@ fn smooth_angle(x: &[f64], n: usize, out: &mut Vec<f64>) {
     out.clear();
     let resolution = encoder_resolution(&x[..n]);
     let step = if n > 1 { (x[n - 1] - x[0]) / (n - 1) as f64 } else { 0.0 };
-    let half = if resolution > 0.0 && step > 0.0 { ((resolution / step).ceil() as usize).min(32) } else { 0 };
+    // Only where the quantisation error drifts: the steps between samples take two or more
+    // multiples of the encoder step r (an advance per sample that is not a whole number of
+    // steps), so the error is a slow sawtooth of one step that passes for structure. A constant
+    // multiple (a fine encoder, or a speed that is a whole number of steps per sample) leaves a
+    // constant or small white error, which the noise model absorbs; and an average across a
+    // sharp change of speed (the tool braking at the target) would bend the angle.
+    let half = if resolution > 0.0 && step > 0.0 && sawtooth(&x[..n], resolution) {
+        ((resolution / step).ceil() as usize).min(32)
+    } else {
+        0
+    };
     if half == 0 {
         out.extend_from_slice(x);
         return;
     }
-    let mut prefix = Vec::with_capacity(x.len() + 1);
+    // Within the window only: past it the tool brakes to the target, and an average across
+    // that change of speed would bend the angle of the window's last samples and of the tail.
+    let mut prefix = Vec::with_capacity(n + 1);
     prefix.push(0.0);
-    for v in x {
+    for v in &x[..n] {
         prefix.push(prefix[prefix.len() - 1] + v);
     }
-    let len = x.len();
-    out.extend((0..len).map(|i| {
-        let h = half.min(i).min(len - 1 - i);
+    out.extend((0..n).map(|i| {
+        let h = half.min(i).min(n - 1 - i);
         (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64
     }));
+    out.extend_from_slice(&x[n..]);
 }
 
 impl Detector {

@@ -107,8 +107,10 @@ impl Scratch {
         whiten(&self.y, &self.noise.coefficients, &mut self.wy);
         self.wf.clear();
         if self.has_force {
-            let force: Vec<f64> = self.index.iter().map(|&i| self.force[i]).collect();
-            whiten(&force, &self.noise.coefficients, &mut self.wf);
+            // The noise fit is done with `noise_y`: it stages the clamp force of these samples.
+            self.noise_y.clear();
+            self.noise_y.extend(self.index.iter().map(|&i| self.force[i]));
+            whiten(&self.noise_y, &self.noise.coefficients, &mut self.wf);
         }
     }
 }

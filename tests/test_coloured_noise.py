@@ -60,3 +60,18 @@ def test_size_under_strongly_coloured_noise_is_bounded() -> None:
     assert _false_alarm_rate(results) <= 0.08
     lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
     assert 0.75 <= lag1 <= 0.9
+
+
+@pytest.mark.slow
+def test_size_under_noise_growing_with_the_torque_is_bounded() -> None:
+    # The independent generator's own transducer noise: 0.01 Nm + 0.4 % of the reading, so the
+    # sd at the target is about three times that at the window's start. Tests that assume one
+    # variance alarm on the loud end (Chow's end test first): 20 % of these clean CST curves
+    # before the detectors weighted the samples by the noise growth they measure
+    # (NoiseModel::sd_slope), 2.1 % after (1.2 % with the same noise made constant in each
+    # curve). The goal, 1.5 x alpha, is not met yet; this guards the gain until it is.
+    import independent_generator as ig
+
+    curves, _ = ig.generate(ig.GeneratorConfig(n=N_CURVES, seed=73, strategy="CST", encoder_step_deg=0.1))
+    results = tightscan.detect_batch(curves)
+    assert _false_alarm_rate(results) <= 0.035

@@ -45,6 +45,10 @@ pub const MIN_NOISE_BLOCK: usize = 24;
 pub struct NoiseModel {
     /// AR coefficients phi_1..phi_p (empty: white noise).
     pub coefficients: Vec<f64>,
+    /// How the noise grows with the signal: its standard deviation is proportional to
+    /// `1 + sd_slope * level` (level: the signal itself, torque in Nm). 0 when the local
+    /// residuals show no significant growth ([`sd_slope`]).
+    pub sd_slope: f64,
 }
 
 impl NoiseModel {
@@ -293,6 +297,8 @@ pub fn estimate_noise(x: &[f64], y: &[f64], block: usize, scratch: &mut NoiseScr
     let Some(observed) = local_autocovariances(x, y, block, MAX_AR_ORDER, &mut scratch.residual) else {
         return NoiseModel::default();
     };
+    block_levels(x, y, SD_BLOCK, &mut scratch.levels);
+    let sd_slope = sd_slope(&scratch.levels);
     let n = x.len() as f64;
     let fits = levinson(&observed);
     let mut best = (f64::INFINITY, 0usize);
@@ -306,7 +312,7 @@ pub fn estimate_noise(x: &[f64], y: &[f64], block: usize, scratch: &mut NoiseScr
     }
     let order = best.1;
     if order == 0 {
-        return NoiseModel::default();
+        return NoiseModel { coefficients: Vec::new(), sd_slope };
     }
     // Blocks are `block` long but for the last, which takes the remainder; the weights of the
     // common length serve all of them (the remainder is less than one block).
@@ -330,7 +336,85 @@ pub fn estimate_noise(x: &[f64], y: &[f64], block: usize, scratch: &mut NoiseScr
             break;
         }
     }
-    NoiseModel { coefficients: phi }
+    NoiseModel { coefficients: phi, sd_slope }
+}
+
+/// Samples per block of the noise-growth fit. Short, so that a window of a hundred samples
+/// gives a dozen (level, variance) pairs: the AR fit's blocks (`block`, 24 and more) give four,
+/// too few to see a noise that triples from snug to target. A line through 8 samples leaves
+/// 6 degrees of freedom per variance and absorbs curvature and slow (coloured) noise alike;
+/// both bias every block's variance by the same factor, which cancels in `s1 / s0`.
+pub const SD_BLOCK: usize = 8;
+
+/// (mean level, residual variance about the block's own line) of consecutive `block`-sample
+/// blocks of `y` against `x` (the last block takes the remainder).
+fn block_levels(x: &[f64], y: &[f64], block: usize, out: &mut Vec<(f64, f64)>) {
+    out.clear();
+    let n = x.len().min(y.len());
+    let n_blocks = n / block;
+    for b in 0..n_blocks {
+        let lo = b * block;
+        let hi = if b + 1 == n_blocks { n } else { lo + block };
+        let (xs, ys) = (&x[lo..hi], &y[lo..hi]);
+        let m = xs.len() as f64;
+        let mx = xs.iter().sum::<f64>() / m;
+        let my = ys.iter().sum::<f64>() / m;
+        let (mut sxx, mut sxy) = (0.0, 0.0);
+        for (xi, yi) in xs.iter().zip(ys) {
+            sxx += (xi - mx) * (xi - mx);
+            sxy += (xi - mx) * (yi - my);
+        }
+        let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+        let rss: f64 = xs.iter().zip(ys).map(|(xi, yi)| (yi - my - slope * (xi - mx)).powi(2)).sum();
+        out.push((my, rss / (m - 2.0)));
+    }
+}
+
+/// One-sided level of the test for noise that grows with the signal.
+pub const SD_SLOPE_ALPHA: f64 = 0.01;
+
+/// The growth of the noise with the signal level, from the local blocks' (level, residual
+/// variance): the least-squares line `sd_b = s0 + s1 level_b`, kept when its slope is positive
+/// at [`SD_SLOPE_ALPHA`] (t test on the blocks), as `s1 / s0`. Transducers are specified as a
+/// constant plus a percentage of the reading; where the percentage dominates, the noise at the
+/// target is several times that at snug, and every test of the elastic line that assumes one
+/// variance alarms on the loud end (Chow's end test first). The intercept is floored at a tenth
+/// of the largest block's sd, so a purely proportional noise does not give an unbounded weight
+/// to the quiet start. The bias the local lines leave in each block variance is the same
+/// factor for every block of one length, and cancels in the ratio.
+fn sd_slope(levels: &[(f64, f64)]) -> f64 {
+    use statrs::distribution::{ContinuousCDF, StudentsT};
+    let n = levels.len();
+    if n < 6 {
+        return 0.0;
+    }
+    let m = n as f64;
+    let sds: Vec<f64> = levels.iter().map(|(_, v)| v.max(0.0).sqrt()).collect();
+    let ml = levels.iter().map(|(l, _)| l).sum::<f64>() / m;
+    let ms = sds.iter().sum::<f64>() / m;
+    let (mut sll, mut sls) = (0.0, 0.0);
+    for ((l, _), sd) in levels.iter().zip(&sds) {
+        sll += (l - ml) * (l - ml);
+        sls += (l - ml) * (sd - ms);
+    }
+    if !(sll > 0.0) {
+        return 0.0;
+    }
+    let s1 = sls / sll;
+    let s0 = ms - s1 * ml;
+    let rss: f64 = levels.iter().zip(&sds).map(|((l, _), sd)| (sd - s0 - s1 * l).powi(2)).sum();
+    let se = (rss / (m - 2.0) / sll).sqrt();
+    if !(s1 > 0.0 && se > 0.0) {
+        return 0.0;
+    }
+    let Ok(t) = StudentsT::new(0.0, 1.0, m - 2.0) else {
+        return 0.0;
+    };
+    if t.sf(s1 / se) > SD_SLOPE_ALPHA {
+        return 0.0;
+    }
+    let loudest = sds.iter().copied().fold(0.0, f64::max);
+    s1 / s0.max(0.1 * loudest)
 }
 
 /// `out_t = v_t - sum_j phi_j v_{t-1-j}` for `t >= p`; the first `p` samples are copied
@@ -351,6 +435,8 @@ pub fn whiten(v: &[f64], phi: &[f64], out: &mut Vec<f64>) {
 #[derive(Clone, Debug, Default)]
 pub struct NoiseScratch {
     residual: Vec<f64>,
+    /// (mean level, residual variance) of each block kept.
+    levels: Vec<(f64, f64)>,
 }
 
 #[cfg(test)]
@@ -415,12 +501,62 @@ mod tests {
         }
     }
 
+    /// A window from 30 % to 100 % of a 50 Nm target, 150 samples, noise sd `sd(level)`.
+    fn growing_window(rng: &mut Xoshiro256PlusPlus, sd: impl Fn(f64) -> f64) -> (Vec<f64>, Vec<f64>) {
+        let n = 150;
+        let x: Vec<f64> = (0..n).map(|i| i as f64).collect();
+        let y: Vec<f64> = x
+            .iter()
+            .map(|i| {
+                let level = 15.0 + 35.0 * i / (n - 1) as f64;
+                let u: f64 = StandardNormal.sample(rng);
+                level + sd(level) * u
+            })
+            .collect();
+        (x, y)
+    }
+
+    #[test]
+    fn noise_growing_with_the_torque_is_measured() {
+        // A transducer of 0.01 Nm + 0.4 % of the reading: the sd at the window's end is 3.1
+        // times that at its start. The weights of the detectors use the ratio; the intercept
+        // floor (a tenth of the loudest block) shrinks it a little, by design.
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+        let mut scratch = NoiseScratch::default();
+        let mut ratios = Vec::new();
+        for _ in 0..200 {
+            let (x, y) = growing_window(&mut rng, |level| 0.01 + 0.004 * level);
+            let kappa = estimate_noise(&x, &y, 32, &mut scratch).sd_slope;
+            ratios.push((1.0 + kappa * 50.0) / (1.0 + kappa * 15.0));
+        }
+        let detected = ratios.iter().filter(|r| **r > 1.0).count();
+        ratios.sort_by(f64::total_cmp);
+        let median = ratios[ratios.len() / 2];
+        assert!(detected >= 180, "growth found in {detected} of 200");
+        assert!((2.3..=3.3).contains(&median), "median sd ratio {median}, true 3.1");
+    }
+
+    #[test]
+    fn constant_noise_rarely_gets_a_growth() {
+        // The one-sided t test at SD_SLOPE_ALPHA (1 %) on the blocks' sds.
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(12);
+        let mut scratch = NoiseScratch::default();
+        let trials = 1000;
+        let grown = (0..trials)
+            .filter(|_| {
+                let (x, y) = growing_window(&mut rng, |_| 0.1);
+                estimate_noise(&x, &y, 32, &mut scratch).sd_slope > 0.0
+            })
+            .count();
+        assert!(grown <= 25, "{grown} of {trials} constant-noise windows got a growing sd");
+    }
+
     #[test]
     fn ar2_of_a_second_order_filter_is_recovered() {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
         let mut scratch = NoiseScratch::default();
         let phi = [1.2, -0.4];
-        let want = NoiseModel { coefficients: phi.to_vec() }.lag1_autocorrelation();
+        let want = NoiseModel { coefficients: phi.to_vec(), sd_slope: 0.0 }.lag1_autocorrelation();
         let mut got = 0.0;
         for _ in 0..50 {
             let x: Vec<f64> = (0..1500).map(|i| i as f64).collect();
@@ -463,7 +599,7 @@ mod tests {
 
     #[test]
     fn variance_inflation_of_ar1() {
-        let m = NoiseModel { coefficients: vec![0.8] };
+        let m = NoiseModel { coefficients: vec![0.8], sd_slope: 0.0 };
         // (1 + phi) / (1 - phi) = 9.
         assert!((m.variance_inflation() - 9.0).abs() < 1e-6);
     }

@@ -11,7 +11,7 @@ use crate::engine::Detector;
 use super::Scratch;
 
 /// Intercept and slope of the least-squares line through `x`, `y` (slope 0 when `x` is flat).
-fn line(x: &[f64], y: &[f64]) -> (f64, f64) {
+pub(super) fn line(x: &[f64], y: &[f64]) -> (f64, f64) {
     let n = x.len() as f64;
     let mx = x.iter().sum::<f64>() / n;
     let my = y.iter().sum::<f64>() / n;
@@ -78,7 +78,7 @@ impl Detector {
         let tail_alpha = self.break_alpha * breaks.tail_fraction;
         let tail_alarm = tail.is_some_and(|(t, _, dev)| t.p_value <= tail_alpha && (beyond_step(dev) || t.p_value <= 0.01 * tail_alpha));
 
-        let (curvature_p_value, smooth_fits_better) = match curvature(&s.xs[..n], wx, &wy[..nw], &s.noise.coefficients, &mut s.line_residuals) {
+        let (curvature_p_value, smooth_fits_better) = match curvature(&s.xs[..n], &s.weights, wx, &wy[..nw], &s.noise.coefficients, &mut s.line_residuals) {
             Some((p, rss_quad)) => {
                 let rss_break = line_rss(&wx[..nw], &wy[..nw]) * (-scan.statistic / nw as f64).exp();
                 (Some(p), rss_quad <= rss_break)
@@ -115,8 +115,9 @@ fn line_rss(x: &[f64], y: &[f64]) -> f64 {
 /// noise model `phi`), with its two-sided p-value from the t distribution on n - 3 degrees of
 /// freedom, and the quadratic's residual sum of squares. `xs` is the smoothed angle of the
 /// whole window (the filter's past included); `wx`, `wy` the whitened angle and torque from the
-/// first whitened sample on.
-fn curvature(xs: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], scratch: &mut Vec<f64>) -> Option<(f64, f64)> {
+/// first whitened sample on; `weights` those of noise that grows with the torque (empty: none),
+/// applied to the square as to the others.
+fn curvature(xs: &[f64], weights: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], scratch: &mut Vec<f64>) -> Option<(f64, f64)> {
     use nalgebra::{Matrix3, Vector3};
     use statrs::distribution::{ContinuousCDF, StudentsT};
     let n = wy.len();
@@ -127,7 +128,8 @@ fn curvature(xs: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], scratch: &mut Vec<
     // filtered, as the other regressors were.
     let lag = phi.len();
     let span = xs.last().copied().unwrap_or(0.0).max(f64::MIN_POSITIVE);
-    let squares: Vec<f64> = xs.iter().map(|x| (x / span).powi(2)).collect();
+    let squares: Vec<f64> =
+        xs.iter().enumerate().map(|(i, x)| (x / span).powi(2) * weights.get(i).copied().unwrap_or(1.0)).collect();
     crate::detectors::noise::whiten(&squares, phi, scratch);
     let wq = scratch.get(lag..lag + n)?;
     let gain = 1.0 - phi.iter().sum::<f64>();

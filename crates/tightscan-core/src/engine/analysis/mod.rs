@@ -58,6 +58,11 @@ pub(super) struct Scratch {
     xs: Vec<f64>,
     noise_t: Vec<f64>,
     noise_y: Vec<f64>,
+    /// Weights of the samples in `x` (empty: all 1): the inverse of the noise sd where the noise
+    /// grows with the torque ([`NoiseModel::sd_slope`]), 1 at the window's mean torque. The
+    /// whitened samples are of the weighted ones.
+    weights: Vec<f64>,
+    weighted: Vec<f64>,
 }
 
 /// Samples per block of the local lines the noise model is estimated from.
@@ -103,18 +108,54 @@ impl Scratch {
         self.noise_t.extend((0..self.noise_y.len()).map(|i| i as f64));
         self.noise = estimate_noise(&self.noise_t, &self.noise_y, NOISE_BLOCK, &mut self.noise_scratch);
         self.lag = self.noise.coefficients.len();
-        whiten(&self.xs, &self.noise.coefficients, &mut self.wx);
-        whiten(&self.y, &self.noise.coefficients, &mut self.wy);
+        self.noise_weights(t0);
+        let phi = &self.noise.coefficients;
+        weigh(&self.xs, &self.weights, &mut self.weighted);
+        whiten(&self.weighted, phi, &mut self.wx);
+        weigh(&self.y, &self.weights, &mut self.weighted);
+        whiten(&self.weighted, phi, &mut self.wy);
         self.wf.clear();
         if self.has_force {
             // The noise fit is done with `noise_y`: it stages the clamp force of these samples.
             self.noise_y.clear();
             self.noise_y.extend(self.index.iter().map(|&i| self.force[i]));
-            whiten(&self.noise_y, &self.noise.coefficients, &mut self.wf);
+            weigh(&self.noise_y, &self.weights, &mut self.weighted);
+            whiten(&self.weighted, phi, &mut self.wf);
         }
+    }
+
+    /// The weights of noise that grows with the torque: `w_i = 1 / (1 + kappa T_i)`, with `T_i`
+    /// the straight elastic line through the window (absolute torque, `t0` its first sample) and
+    /// kappa the noise model's `sd_slope`. Weighted least squares in disguise, and exact for
+    /// the tests: with the sd affine in the angle, `sd_i = c0 + c1 x_i`, the weighted line
+    /// `y_i w_i = a w_i + b x_i w_i + u_i` is, since `w_i = (1 - c1 x_i w_i) / c0`, again a
+    /// straight line `y_i w_i = a / c0 + (b - a c1 / c0) (x_i w_i) + u_i` in the weighted angle,
+    /// with a constant intercept and errors of one variance; a change of `a` or `b` stays a
+    /// change of it. So every detector runs unchanged on the weighted samples.
+    fn noise_weights(&mut self, t0: f64) {
+        self.weights.clear();
+        let kappa = self.noise.sd_slope;
+        let n = self.n_window;
+        if !(kappa > 0.0) || n < 2 {
+            return;
+        }
+        let (a, b) = breaks::line(&self.xs[..n], &self.y[..n]);
+        let mean_level = t0 + self.y[..n].iter().sum::<f64>() / n as f64;
+        let reference = 1.0 + kappa * mean_level.max(0.0);
+        self.weights.extend(self.xs.iter().map(|x| reference / (1.0 + kappa * (t0 + a + b * x).max(0.0))));
     }
 }
 
+
+/// `v` times `weights` into `out` (`v` itself when there are no weights).
+fn weigh(v: &[f64], weights: &[f64], out: &mut Vec<f64>) {
+    out.clear();
+    if weights.is_empty() {
+        out.extend_from_slice(v);
+    } else {
+        out.extend(v.iter().zip(weights).map(|(v, w)| v * w));
+    }
+}
 
 /// Where one tightening sits in the table, and what the table says of its controller steps.
 #[derive(Clone, Copy, Debug)]

@@ -75,3 +75,21 @@ def test_size_under_noise_growing_with_the_torque_is_bounded() -> None:
     curves, _ = ig.generate(ig.GeneratorConfig(n=N_CURVES, seed=73, strategy="CST", encoder_step_deg=0.1))
     results = tightscan.detect_batch(curves)
     assert _false_alarm_rate(results) <= 0.035
+
+
+@pytest.mark.slow
+def test_size_under_heavy_tailed_noise_is_bounded() -> None:
+    # Student-t noise with 4 degrees of freedom (a transducer's spikes), on the independent
+    # generator's CST curves. The break scan and Chow's end test are F tests whose size holds
+    # for Gaussian noise: 8.7 % false alarms before heavy-tailed windows were made Gaussian by
+    # normal scores under a fitted t (Scratch::gaussianise_heavy_tails), 5.1 % after (n = 1,000;
+    # 5.7 % at this seed and size). The goal, 1.5 x alpha, is not met
+    # yet; this guards the gain until it is.
+    import independent_generator as ig
+
+    noise = ig.NoiseConfig(colour="t4")
+    curves, _ = ig.generate(
+        ig.GeneratorConfig(n=N_CURVES, seed=74, strategy="CST", encoder_step_deg=0.1, noise=noise)
+    )
+    results = tightscan.detect_batch(curves)
+    assert _false_alarm_rate(results) <= 0.07

@@ -34,7 +34,7 @@ build: $(VENV)/.built
 
 bench: $(VENV)/.built
 	$(PY) -m pip install --quiet ".[bench]" --no-deps 2>/dev/null || true
-	$(PY) -m pip install --quiet ruptures statsmodels river scipy matplotlib
+	$(PY) -m pip install --quiet ruptures statsmodels river scipy matplotlib pandas
 	$(PY) benches/bench_cusum.py
 	cargo bench -p tightscan-benches
 

@@ -11,3 +11,18 @@ pub mod monitor;
 pub mod noise;
 pub mod sequence;
 pub mod shewhart;
+
+/// Intercept and slope of the least-squares line through `x`, `y` (slope 0 when `x` is flat):
+/// the local lines of the noise model and the engine's lines through a window alike.
+pub fn least_squares_line(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = x.len().min(y.len()) as f64;
+    let mx = x.iter().sum::<f64>() / n;
+    let my = y.iter().sum::<f64>() / n;
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (xi, yi) in x.iter().zip(y) {
+        sxx += (xi - mx) * (xi - mx);
+        sxy += (xi - mx) * (yi - my);
+    }
+    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    (my - b * mx, b)
+}

@@ -121,16 +121,9 @@ fn local_autocovariances(x: &[f64], y: &[f64], block: usize, max_lag: usize, res
         let hi = if b + 1 == n_blocks { n } else { lo + block };
         let (xs, ys) = (&x[lo..hi], &y[lo..hi]);
         let m = xs.len() as f64;
-        let mx = xs.iter().sum::<f64>() / m;
-        let my = ys.iter().sum::<f64>() / m;
-        let (mut sxx, mut sxy) = (0.0, 0.0);
-        for (xi, yi) in xs.iter().zip(ys) {
-            sxx += (xi - mx) * (xi - mx);
-            sxy += (xi - mx) * (yi - my);
-        }
-        let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+        let (a, b) = super::least_squares_line(xs, ys);
         residual.clear();
-        residual.extend(xs.iter().zip(ys).map(|(xi, yi)| yi - my - slope * (xi - mx)));
+        residual.extend(xs.iter().zip(ys).map(|(xi, yi)| yi - a - b * xi));
         let mut sums = vec![0.0; max_lag + 1];
         let mut pairs = vec![0.0; max_lag + 1];
         for lag in 0..=max_lag.min(residual.len() - 1) {
@@ -339,6 +332,19 @@ pub fn estimate_noise(x: &[f64], y: &[f64], block: usize, scratch: &mut NoiseScr
     NoiseModel { coefficients: phi, sd_slope }
 }
 
+/// Sample excess kurtosis `m4 / m2^2 - 3` (moments about the mean); NaN when all values are
+/// equal or there are none.
+pub fn excess_kurtosis(values: &[f64]) -> f64 {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let m2 = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+    let m4 = values.iter().map(|v| (v - mean).powi(4)).sum::<f64>() / n;
+    if !(m2 > 0.0) {
+        return f64::NAN;
+    }
+    m4 / (m2 * m2) - 3.0
+}
+
 /// Anscombe and Glynn's (1983) test of excess kurtosis, as D'Agostino's omnibus test and
 /// `scipy.stats.kurtosistest` use it: the standardised sample kurtosis `b2 = m4 / m2^2` mapped by
 /// a cube-root transformation to a statistic that is close to standard normal under Gaussian
@@ -352,13 +358,10 @@ pub fn kurtosis_z(values: &[f64]) -> f64 {
         return f64::NAN;
     }
     let n = len as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let m2 = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
-    let m4 = values.iter().map(|v| (v - mean).powi(4)).sum::<f64>() / n;
-    if !(m2 > 0.0) {
+    let b2 = excess_kurtosis(values) + 3.0;
+    if !b2.is_finite() {
         return f64::NAN;
     }
-    let b2 = m4 / (m2 * m2);
     let expected = 3.0 * (n - 1.0) / (n + 1.0);
     let variance = 24.0 * n * (n - 2.0) * (n - 3.0) / ((n + 1.0).powi(2) * (n + 3.0) * (n + 5.0));
     let x = (b2 - expected) / variance.sqrt();
@@ -390,16 +393,9 @@ fn block_levels(x: &[f64], y: &[f64], block: usize, out: &mut Vec<(f64, f64)>) {
         let hi = if b + 1 == n_blocks { n } else { lo + block };
         let (xs, ys) = (&x[lo..hi], &y[lo..hi]);
         let m = xs.len() as f64;
-        let mx = xs.iter().sum::<f64>() / m;
-        let my = ys.iter().sum::<f64>() / m;
-        let (mut sxx, mut sxy) = (0.0, 0.0);
-        for (xi, yi) in xs.iter().zip(ys) {
-            sxx += (xi - mx) * (xi - mx);
-            sxy += (xi - mx) * (yi - my);
-        }
-        let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-        let rss: f64 = xs.iter().zip(ys).map(|(xi, yi)| (yi - my - slope * (xi - mx)).powi(2)).sum();
-        out.push((my, rss / (m - 2.0)));
+        let (a, b) = super::least_squares_line(xs, ys);
+        let rss: f64 = xs.iter().zip(ys).map(|(xi, yi)| (yi - a - b * xi).powi(2)).sum();
+        out.push((ys.iter().sum::<f64>() / m, rss / (m - 2.0)));
     }
 }
 

@@ -2,6 +2,7 @@
 //! test of the last samples up to the peak, with the encoder-step check that keeps angle
 //! quantisation from passing for a friction change.
 
+use crate::detectors::least_squares_line as line;
 use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_p_value, sup_lr_scan, tail_test};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
@@ -9,20 +10,6 @@ use crate::physics::torque_rate::encoder_resolution;
 use crate::engine::Detector;
 
 use super::Scratch;
-
-/// Intercept and slope of the least-squares line through `x`, `y` (slope 0 when `x` is flat).
-pub(super) fn line(x: &[f64], y: &[f64]) -> (f64, f64) {
-    let n = x.len() as f64;
-    let mx = x.iter().sum::<f64>() / n;
-    let my = y.iter().sum::<f64>() / n;
-    let (mut sxx, mut sxy) = (0.0, 0.0);
-    for (xi, yi) in x.iter().zip(y) {
-        sxx += (xi - mx) * (xi - mx);
-        sxy += (xi - mx) * (yi - my);
-    }
-    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    (my - b * mx, b)
-}
 
 impl Detector {
     /// sup-LR scan over the window's whitened samples (stops left out, see

@@ -156,19 +156,16 @@ impl Scratch {
         // The front of the window only: a late friction change, which only the end test can
         // see, would itself look like a heavy tail of the whole window's residuals.
         let front = n.saturating_sub(crate::detectors::breakpoint::min_segment(n.saturating_sub(lag)));
-        if front < lag + MIN_KURTOSIS_SAMPLES || self.wy.len() != self.wx.len() {
+        if front < lag + MIN_KURTOSIS_SAMPLES || front > self.wx.len() || self.wy.len() != self.wx.len() {
             return;
         }
-        let (a, b) = breaks::line(&self.wx[lag..front], &self.wy[lag..front]);
+        let (a, b) = crate::detectors::least_squares_line(&self.wx[lag..front], &self.wy[lag..front]);
         self.weighted.clear();
         self.weighted.extend(self.wx[lag..front].iter().zip(&self.wy[lag..front]).map(|(x, y)| y - a - b * x));
         if !(crate::detectors::noise::kurtosis_z(&self.weighted) > KURTOSIS_Z) {
             return;
         }
-        let m = self.weighted.len() as f64;
-        let m2 = self.weighted.iter().map(|r| r * r).sum::<f64>() / m;
-        let m4 = self.weighted.iter().map(|r| r.powi(4)).sum::<f64>() / m;
-        let excess = m4 / (m2 * m2) - 3.0;
+        let excess = crate::detectors::noise::excess_kurtosis(&self.weighted);
         // A t's kurtosis is infinite from 4 degrees of freedom down; a sample's is finite, so
         // the estimate is floored where the moment no longer tells nu apart.
         let nu = (4.0 + 6.0 / excess.max(f64::MIN_POSITIVE)).clamp(MIN_T_DEGREES, MAX_T_DEGREES);
@@ -213,7 +210,7 @@ impl Scratch {
         if !(kappa > 0.0) || n < 2 {
             return;
         }
-        let (a, b) = breaks::line(&self.xs[..n], &self.y[..n]);
+        let (a, b) = crate::detectors::least_squares_line(&self.xs[..n], &self.y[..n]);
         let mean_level = t0 + self.y[..n].iter().sum::<f64>() / n as f64;
         let reference = 1.0 + kappa * mean_level.max(0.0);
         self.weights.extend(self.xs.iter().map(|x| reference / (1.0 + kappa * (t0 + a + b * x).max(0.0))));

@@ -23,7 +23,7 @@ test: $(VENV)/.built
 $(VENV)/.deps: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet "maturin>=1.9,<2" pyarrow numpy rich "pytest>=8" "hypothesis>=6.100" "polars>=1.0" "mypy>=1.10" "matplotlib>=3.8"
+	$(PY) -m pip install --quiet "maturin>=1.9,<2" pyarrow numpy rich "scipy>=1.11" "statsmodels>=0.14" "pytest>=8" "hypothesis>=6.100" "polars>=1.0" "mypy>=1.10" "matplotlib>=3.8"
 	touch $@
 
 $(VENV)/.built: $(VENV)/.deps $(RUST_SOURCES) $(PY_SOURCES)

@@ -271,3 +271,118 @@ def test_cli_reads_a_rexroth_directory(tmp_path: Path, rexroth_dir: Path) -> Non
     _check_document(doc)
     assert doc["tightenings_in_table"] == 50
     assert main(["diagnose", str(tmp_path / "nowhere"), "--json", str(out)]) == 2
+
+
+# ---------------------------------------------------------------------------------------------
+# The statistics come from scipy and statsmodels, each used as its textbook says
+
+
+def test_improvement_tests_are_student_t_and_the_exact_sign_test() -> None:
+    from scipy import stats
+
+    from tightscan.diagnose.fit import _one_sided_tests
+
+    # five tightenings: the sd comes from the same five values, so the reference is t with 4
+    # degrees of freedom, whose tail is several times the normal's at t = 2.4
+    u = np.array([0.3, -0.1, 0.5, 0.2, 0.4])
+    got = _one_sided_tests(u)
+    ref = stats.ttest_1samp(u, 0.0, alternative="greater")
+    t = got["t_statistic"]
+    assert t == pytest.approx(float(ref.statistic), rel=1e-12)
+    assert got["p_value"] == pytest.approx(float(ref.pvalue), rel=1e-12)
+    # Student's t with 4 degrees of freedom in closed form (a wrong df fails here)
+    cdf4 = 0.5 + 0.375 * (t / math.sqrt(1 + t * t / 4)) * (1 - t * t / (12 * (1 + t * t / 4)))
+    assert got["p_value"] == pytest.approx(1 - cdf4, rel=1e-9)
+    normal_tail = 0.5 * math.erfc(t / math.sqrt(2))
+    assert got["p_value"] > 4 * normal_tail
+    # a certain improvement everywhere: p = 0 (infinite t); no change anywhere: p = 1/2, sign p = 1
+    assert _one_sided_tests(np.full(10, 0.2))["p_value"] == 0.0
+    flat = _one_sided_tests(np.zeros(10))
+    assert flat["p_value"] == 0.5 and flat["sign_p_value"] == 1.0
+
+    # sign test: 9 of the 12 nonzero improvements positive, two ties left out; exact binomial
+    # tail P(X >= 9 | 12, 1/2) = (220 + 66 + 12 + 1) / 4096 (the normal approximation: 0.0745)
+    u = np.r_[np.full(9, 0.1), np.full(3, -0.1), np.zeros(2)]
+    got = _one_sided_tests(u)
+    assert got["sign_p_value"] == stats.binomtest(9, 12, 0.5, alternative="greater").pvalue
+    assert got["sign_p_value"] == pytest.approx(299 / 4096, rel=1e-12)
+    assert got["fraction_improved"] == 9 / 14
+
+
+def _ar1(n: int, phi: float, rng: np.random.Generator) -> Any:
+    e = rng.normal(size=n + 100)
+    x = np.zeros_like(e)
+    for i in range(1, len(e)):
+        x[i] = phi * x[i - 1] + e[i]
+    return x[100:]
+
+
+def test_ljung_box_is_statsmodels_per_segment() -> None:
+    from scipy import stats
+    from statsmodels.stats.diagnostic import acorr_ljungbox
+
+    from tightscan.diagnose.spectrum import _ljung_box
+
+    rng = np.random.default_rng(7)
+    a, b = _ar1(400, 0.5, rng), _ar1(300, 0.5, rng)
+    one = _ljung_box(a, np.zeros(len(a), dtype=np.int64), 10)
+    lb = acorr_ljungbox(a, lags=[10], return_df=True)
+    assert one["q_sum"] == pytest.approx(float(lb["lb_stat"].iloc[0]), rel=1e-12)
+    assert one["p_value"] == pytest.approx(float(lb["lb_pvalue"].iloc[0]), rel=1e-9)
+    assert one["df"] == 10
+    # the textbook statistic, n (n + 2) sum_k rho_k^2 / (n - k), with the sample autocorrelation
+    # of the demeaned series
+    d = a - a.mean()
+    rho = np.array([np.sum(d[k:] * d[:-k]) for k in range(1, 11)]) / np.sum(d * d)
+    n = len(a)
+    assert one["q_sum"] == pytest.approx(n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, 11))), rel=1e-10)
+    assert one["p_value"] < 1e-10  # AR(1) with phi 0.5 is not white
+
+    # segments are series of their own: Q adds up, no lag reaches across, and a segment too
+    # short for lag 10 is left out
+    r = np.r_[a, b, rng.normal(size=8)]
+    seg = np.r_[np.zeros(len(a)), np.ones(len(b)), np.full(8, 2)].astype(np.int64)
+    q_a = float(acorr_ljungbox(a, lags=[10], return_df=True)["lb_stat"].iloc[0])
+    q_b = float(acorr_ljungbox(b, lags=[10], return_df=True)["lb_stat"].iloc[0])
+    both = _ljung_box(r, seg, 10)
+    assert both["q_sum"] == pytest.approx(q_a + q_b, rel=1e-12)
+    assert both["df"] == 20
+    assert both["p_value"] == pytest.approx(float(stats.chi2.sf(q_a + q_b, 20)), rel=1e-9)
+    assert both["fraction_rejected_1pct"] == 1.0
+    q_joined = float(acorr_ljungbox(np.r_[a, b], lags=[10], return_df=True)["lb_stat"].iloc[0])
+    assert abs(both["q_sum"] - q_joined) > 1e-6 * q_joined
+
+
+def test_spectrum_finds_a_sine_of_known_period_and_amplitude() -> None:
+    from tightscan.diagnose.spectrum import _Long, _periodogram, _power_spectra
+
+    rng = np.random.default_rng(11)
+    period, amplitude, noise = 45.0, 0.05, 0.02
+    n_t = 40
+    theta = np.arange(0.0, 760.0, 1.0)
+    gid = np.repeat(np.arange(n_t), len(theta))
+    th = np.tile(theta, n_t)
+    phase = rng.uniform(0, 2 * np.pi, n_t)[gid]
+    drift = 0.01 * ((th - 380) / 380) ** 2
+    resid = amplitude * np.sin(2 * np.pi * th / period + phase) + drift + rng.normal(0, noise, len(th))
+
+    # the power spectrum puts the sine at its frequency with power A^2 / 2 (720 deg on 512 points)
+    step = 720.0 / 512
+    grid = 39.0 + step * np.arange(512)
+    rows = np.array([np.interp(grid, theta, resid[gid == j]) for j in range(n_t)])
+    freq, power = _power_spectra(rows, step)
+    mean_power = power.mean(axis=0)
+    k = int(np.argmax(mean_power[3:])) + 3
+    assert 1.0 / freq[k] == pytest.approx(period, rel=1e-9)
+    assert mean_power[k] == pytest.approx(amplitude**2 / 2, rel=0.1)
+
+    # the averaged periodogram of the diagnosis reports that peak first, and nothing in noise alone
+    span = np.full(n_t, theta[-1] - theta[0])
+    count = np.full(n_t, float(len(theta)))
+    level = np.ones(n_t)
+    info = _periodogram(_Long(gid, th, resid, level, span, count), n_t)
+    assert info["window_deg"] == 720.0 and info["segments"] == n_t
+    assert info["peaks"] and info["peaks"][0]["period_deg"] == pytest.approx(period, rel=1e-9)
+    assert info["peaks"][0]["power_ratio"] > 10
+    quiet = _periodogram(_Long(gid, th, rng.normal(0, noise, len(th)), level, span, count), n_t)
+    assert quiet["peaks"] == []

@@ -10,17 +10,15 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 import pyarrow as pa
+from scipy import stats
 
 from ..exceptions import SchemaError
 from .prepare import _GROUP_DEFAULT, _Groups, _Samples, F64, I64
 
 
-def _normal_sf(z: float) -> float:
-    return 0.5 * math.erfc(z / math.sqrt(2.0))
-
-
 def _one_sided_tests(u: F64) -> dict[str, float]:
-    """One-sided tests that per-tightening improvements ``u`` are > 0: t (mean) and sign."""
+    """One-sided tests that per-tightening improvements ``u`` are > 0: Student t on the mean, and
+    the exact sign test."""
     u = u[np.isfinite(u)]
     n = len(u)
     if n < 3:
@@ -29,11 +27,18 @@ def _one_sided_tests(u: F64) -> dict[str, float]:
     t = float(np.mean(u)) / (sd / math.sqrt(n)) if sd > 0 else (math.inf if np.mean(u) > 0 else 0.0)
     pos = int(np.sum(u > 0))
     nz = int(np.sum(u != 0))
-    zs = (pos - 0.5 - 0.5 * nz) / (0.5 * math.sqrt(nz)) if nz else 0.0
+    # The sd is estimated from the same n improvements, so the mean over its standard error is
+    # referred to Student's t with n - 1 degrees of freedom (exact for normal improvements), not to
+    # the normal: it matters at level 2 (from 30 tightenings on) and in the far tail that the
+    # reported p-values reach with thousands of tightenings.
+    p_t = float(stats.t.sf(t, n - 1))
+    # Under no effect each nonzero improvement is positive with probability 1/2: the count of
+    # positives is binomial, its tail exact at any n. Ties (exactly 0) carry no sign.
+    p_sign = float(stats.binomtest(pos, nz, 0.5, alternative="greater").pvalue) if nz else 1.0
     return {
         "t_statistic": t,
-        "p_value": _normal_sf(t) if math.isfinite(t) else (0.0 if t > 0 else 1.0),
-        "sign_p_value": _normal_sf(zs),
+        "p_value": p_t,
+        "sign_p_value": p_sign,
         "fraction_improved": pos / n,
         "n": n,
     }

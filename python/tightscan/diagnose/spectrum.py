@@ -8,6 +8,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import signal, stats
+from statsmodels.stats.diagnostic import acorr_ljungbox
 
 from .prepare import _Groups, _Samples, F64, I64
 
@@ -68,6 +70,26 @@ def _poly_fit(gid: I64, theta: F64, y: F64, n: int, extra: list[F64]) -> tuple[F
     return fitted[:, 0], full_coef, full_var
 
 
+def _quadratic_detrend(v: F64) -> F64:
+    """Each row (last axis) minus its least-squares quadratic: the drift a stretch keeps after the
+    per-tightening fit over the whole long stretch."""
+    x = np.arange(v.shape[-1], dtype=np.float64)
+    rows = v.reshape(-1, v.shape[-1])
+    trend = np.polynomial.polynomial.polyval(x, np.polynomial.polynomial.polyfit(x, rows.T, 2))
+    out: F64 = (rows - trend).reshape(v.shape)
+    return out
+
+
+def _power_spectra(v: F64, grid_step: float) -> tuple[F64, F64]:
+    """One-sided power spectra of the rows of ``v`` (uniform angle grid, ``grid_step`` deg):
+    frequencies in cycles per degree and power in the unit of ``v`` squared.
+
+    A Hann taper keeps the leakage of the strong low-frequency drift out of the higher bins;
+    ``scaling="spectrum"`` puts a sine of amplitude A at A^2 / 2 in its bin."""
+    freq, power = signal.periodogram(v, fs=1.0 / grid_step, window="hann", detrend=_quadratic_detrend, scaling="spectrum", axis=-1)
+    return np.asarray(freq, dtype=np.float64), np.asarray(power, dtype=np.float64)
+
+
 def _periodogram(lg: _Long | None, n_tight: int) -> dict[str, Any]:
     """Average periodogram of the long-stretch residual against angle (each stretch resampled
     onto a uniform angle grid, tapered, its power normalised to mean 1, then averaged)."""
@@ -85,12 +107,11 @@ def _periodogram(lg: _Long | None, n_tight: int) -> dict[str, Any]:
         return info
     n_grid = 512
     grid_step = window / n_grid
-    powers = []
     order = np.argsort(lg.gid, kind="stable")
     gs, th, rr_all = lg.gid[order], lg.theta[order], lg.resid[order]
     starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]])
     ends = np.r_[starts[1:], len(gs)]
-    taper = np.hanning(n_grid)
+    stretches = []
     for b, e in zip(starts, ends):
         if lg.span[gs[b]] < window or e - b < 64:
             continue
@@ -98,20 +119,21 @@ def _periodogram(lg: _Long | None, n_tight: int) -> dict[str, Any]:
         o = np.argsort(t, kind="stable")
         t, r = t[o], r[o]
         grid = t[-1] - window + grid_step * np.arange(n_grid)
-        v = np.interp(grid, t, r)
-        v = v - np.polyval(np.polyfit(np.arange(n_grid), v, 2), np.arange(n_grid))
-        spec = np.abs(np.fft.rfft(v * taper)) ** 2
-        tot = spec[1:].mean()
-        if tot > 0:
-            powers.append(spec / tot)
-        if len(powers) >= 3000:
+        stretches.append(np.interp(grid, t, r))
+        if len(stretches) >= 3000:
             break
+    freq, powers = np.zeros(0), np.zeros((0, 0))
+    if stretches:
+        freq, spectra = _power_spectra(np.array(stretches), grid_step)
+        # each stretch normalised to mean power 1 (DC left out): noisy and quiet stretches weigh
+        # alike in the average, and a peak reads as a ratio to the local background
+        tot = spectra[:, 1:].mean(axis=1)
+        powers = spectra[tot > 0] / tot[tot > 0, None]
     if len(powers) < 20:
         info["note"] = "too few long rundown stretches for a periodogram"
         return info
     P = np.mean(powers, axis=0)
-    kk = np.arange(len(P))
-    periods = window / np.maximum(kk, 1)
+    periods = np.r_[window, 1.0 / freq[1:]]
     # periods shorter than a few sample spacings are interpolation and aliasing, not data
     d_theta = np.diff(lg.theta)
     d_theta = d_theta[(np.diff(lg.gid) == 0) & (d_theta > 0)]
@@ -142,12 +164,40 @@ def _periodogram(lg: _Long | None, n_tight: int) -> dict[str, Any]:
 # Whiteness
 
 
+def _ljung_box(r: F64, segment: I64, lags: int) -> dict[str, float]:
+    """Ljung-Box Q at ``lags`` of each contiguous segment of ``r`` (a tightening's elastic window
+    or rundown stretch: a series of its own, no lag reaches across), summed over the segments.
+
+    Under whiteness each segment's Q is asymptotically chi-square with ``lags`` degrees of freedom
+    and the segments are independent, so the sum is chi-square with the summed degrees of
+    freedom. Segments of ``lags`` samples or fewer have no lag-``lags`` pair and are left out."""
+    starts = np.flatnonzero(np.r_[True, segment[1:] != segment[:-1]])
+    ends = np.r_[starts[1:], len(segment)]
+    q_sum = 0.0
+    used = rejected = 0
+    for b, e in zip(starts, ends):
+        if e - b <= lags:
+            continue
+        lb = acorr_ljungbox(r[b:e], lags=[lags], return_df=True)
+        q_sum += float(lb["lb_stat"].iloc[0])
+        rejected += int(float(lb["lb_pvalue"].iloc[0]) < 0.01)
+        used += 1
+    df = lags * used
+    return {
+        "q_sum": q_sum,
+        "df": df,
+        "p_value": float(stats.chi2.sf(q_sum, df)) if df else 1.0,
+        # the chi-square standardised by its mean and sd: with tens of thousands of degrees of
+        # freedom the p-value underflows, this still compares data sets
+        "z": (q_sum - df) / math.sqrt(2 * df) if df else 0.0,
+        "fraction_rejected_1pct": rejected / used if used else float("nan"),
+    }
+
+
 def _whiteness(s: _Samples, r: F64, lags: int = 10) -> dict[str, Any]:
     key = s.gid * 2 + s.seg
     n = len(r)
     acf = []
-    num_t = np.zeros((lags, s.n_tight))
-    den_t = np.bincount(s.gid, weights=r * r, minlength=s.n_tight)
     X = np.zeros((n, lags))
     valid = np.ones(n, dtype=bool)
     for k in range(1, lags + 1):
@@ -155,16 +205,10 @@ def _whiteness(s: _Samples, r: F64, lags: int = 10) -> dict[str, Any]:
         same = key[i] == key[i - k]
         prod = np.where(same, r[i] * r[i - k], 0.0)
         acf.append(float(prod.sum() / max(np.sum(r * r), 1e-300)))
-        num_t[k - 1] = np.bincount(s.gid[i], weights=prod, minlength=s.n_tight)
         X[k:, k - 1] = np.where(same, r[:-k], 0.0)
         valid[k:] &= same
         valid[:k] = False
-    nt = np.bincount(s.gid, minlength=s.n_tight).astype(np.float64)
-    rho = num_t / np.maximum(den_t, 1e-300)
-    q = nt * (nt + 2) * np.sum(rho**2 / np.maximum(nt - np.arange(1, lags + 1)[:, None], 1), axis=0)
-    q_tot = float(np.sum(q))
-    df = lags * s.n_tight
-    z_lb = (q_tot - df) / math.sqrt(2 * df)
+    lb = _ljung_box(r, key, lags)
     # pooled AR(lags) predictability of the residual from its own past (effect size)
     Xv, rv = X[valid], r[valid]
     r2 = 0.0
@@ -172,7 +216,9 @@ def _whiteness(s: _Samples, r: F64, lags: int = 10) -> dict[str, Any]:
         coef, *_ = np.linalg.lstsq(Xv, rv, rcond=None)
         pred = Xv @ coef
         r2 = float(1 - np.sum((rv - pred) ** 2) / max(np.sum(rv * rv), 1e-300))
-    # runs test on signs within segments
+    # Wald-Wolfowitz runs test on signs within segments, pooled: the total count of runs is a sum
+    # over thousands of independent segments, each with its exact null mean and variance, so a
+    # normal reference is right for it (central limit theorem over segments); reported as a z.
     sg = r > 0
     new = np.r_[True, key[1:] != key[:-1]]
     runs = np.sum(new | (sg != np.r_[~sg[0], sg[:-1]]))
@@ -185,11 +231,14 @@ def _whiteness(s: _Samples, r: F64, lags: int = 10) -> dict[str, Any]:
     z_runs = float((runs - mu) / math.sqrt(var)) if var > 0 else 0.0
     return {
         "lag_autocorrelation": acf,
-        "ljung_box_q_sum": q_tot,
-        "ljung_box_df": df,
-        "ljung_box_z": z_lb,
+        "ljung_box_q_sum": lb["q_sum"],
+        "ljung_box_df": lb["df"],
+        "ljung_box_z": lb["z"],
+        "ljung_box_p_value": lb["p_value"],
+        "ljung_box_fraction_rejected_1pct": lb["fraction_rejected_1pct"],
         "ar_r2": r2,
         "runs_test_z": z_runs,
-        "note": "ar_r2: fraction of the residual variance predictable from its own past 10 samples (pooled AR(10)); "
+        "note": "ljung_box: Q at lag 10 per segment (elastic window, rundown stretch), summed; "
+        "ar_r2: fraction of the residual variance predictable from its own past 10 samples (pooled AR(10)); "
         "with thousands of tightenings any autocorrelation is 'significant', so the structure flag uses this effect size",
     }

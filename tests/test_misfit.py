@@ -94,11 +94,59 @@ def test_step_channel_errors() -> None:
     assert status.startswith("length_mismatch: step")
 
 
+def test_a_late_relaxation_dip_ends_the_tested_window() -> None:
+    # The dip comes a few degrees before the window's end (the real Rexroth runs pause there):
+    # too few samples follow it, so the part before it is tested, and nothing after it.
+    dip_angle = 565 * 0.25
+    results = tightscan.detect_batch(_table([_with_relaxation(seed, at=565) for seed in range(20)]))
+    assert results["change_detected"].to_pylist() == [False] * 20
+    assert results["status"].to_pylist() == ["ok"] * 20
+    ends = results["tested_end_angle"].to_pylist()
+    assert max(ends) < dip_angle
+    assert min(ends) > dip_angle - 2.0
+    assert all(e < w for e, w in zip(ends, results["elastic_end_angle"].to_pylist()))
+
+
+def test_a_late_unsampled_pause_ends_the_tested_window() -> None:
+    curves = []
+    for seed in range(10):
+        angle, torque, time = _curve(seed=seed)
+        # The torque relaxes by 0.3 Nm while the recorder is stopped, 6 deg before the window's end.
+        torque = np.where(angle >= 140.0, torque - 0.3, torque)
+        time = time + (angle >= 140.0) * 0.05
+        curves.append((angle, torque, time))
+    results = tightscan.detect_batch(_table(curves))
+    assert results["change_detected"].to_pylist() == [False] * 10
+    assert all(139.0 < e < 140.0 for e in results["tested_end_angle"].to_pylist())
+
+
+def test_every_step_change_in_the_window_counts() -> None:
+    # Two step changes inside the window; at the last, the torque falls and is wound up again
+    # over 2 deg. The test starts where the torque is back on the elastic line, not where it
+    # regains its old level (which it does half way up the wind-up).
+    curves, steps = [], []
+    for seed in range(10):
+        angle, torque, time = _curve(seed=seed)
+        step = (angle >= 80.0).astype(np.int32) + (angle >= 110.0).astype(np.int32)
+        wind_up = (angle >= 110.0) & (angle < 112.0)
+        torque = np.where(wind_up, torque - 0.4 * (112.0 - angle) / 2.0 * 2.0, torque)
+        curves.append((angle, torque, time))
+        steps.append(step)
+    results = tightscan.detect_batch(_table(curves, step=pa.array(steps, pa.list_(pa.int32()))))
+    assert all(s >= 111.75 for s in results["tested_start_angle"].to_pylist())
+    assert results["change_detected"].to_pylist() == [False] * 10
+
+
 def test_s01_control_group_claims_are_bounded(rexroth_s01: pa.Table) -> None:
     # s01 is a control group: no friction fault inside any tightening. The rule claimed a change
-    # in 99.4 % of the decided runs before the noise model and the controller-event handling;
-    # now in 8.6 %. The goal (at most 2 %) is not met yet; this guards the gain.
+    # in 99.4 % of the decided runs before the noise model and the controller-event handling,
+    # 8.8 % before pauses late in the window ended it and every step change counted; now in
+    # 1.3 % (35 of 2,739), inside the goal of 2 %.
     results = tightscan.detect_batch(rexroth_s01)
     decided = [v for v in results["change_detected"].to_pylist() if v is not None]
-    assert len(decided) >= 3000
-    assert float(np.mean(decided)) <= 0.10
+    assert len(decided) >= 2600
+    assert float(np.mean(decided)) <= 0.02
+    # Every undecided run says why, and names the part of the window it could not test.
+    statuses = results["status"].to_pylist()
+    assert all(s == "ok" or s.startswith(("too_short: ", "model_misfit: ")) for s in statuses)
+    assert any("before the tool paused" in s for s in statuses)

@@ -58,6 +58,7 @@ pub(super) fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         f(|r| r.window.map(|w| w.0)),
         f(|r| r.window.map(|w| w.1)),
         f(|r| r.tested_start),
+        f(|r| r.tested_end),
         f(|r| r.phases.and_then(|p| p.yield_angle)),
         f(|r| r.phases.map(|p| p.peak_torque)),
         f(|r| r.phases.map(|p| p.peak_angle)),

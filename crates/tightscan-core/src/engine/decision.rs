@@ -164,9 +164,11 @@ impl Detector {
             if matches!(row.status, TighteningStatus::TooShort { .. } | TighteningStatus::NoElasticZone { .. }) {
                 row.status = TighteningStatus::Ok;
             }
-        } else if let TighteningStatus::TooShort { minimum, what: "elastic window", .. } = &mut row.status {
-            if self.config.decision.detectors.contains(&DetectorKind::Break) {
-                *minimum = (*minimum).min(2 * MIN_SEGMENT);
+        } else if let TighteningStatus::TooShort { minimum, what, .. } = &mut row.status {
+            if what.starts_with("elastic window") && self.config.decision.detectors.contains(&DetectorKind::Break) {
+                // The break scan needs two minimum segments of whitened samples, and whitening
+                // takes the autoregression's order from the front.
+                *minimum = (*minimum).min(2 * MIN_SEGMENT + row.noise_order);
             }
         }
     }

@@ -179,9 +179,10 @@ impl<'a> StepColumn<'a> {
         Ok(Self { offsets, list_nulls: list_nulls.filter(|n| n.null_count() > 0), values })
     }
 
-    /// Length of row `i`'s step list and the first sample of its last step (the sample where
-    /// the step number last changes; 0 for a single step). `None` for a null row.
-    pub fn last_step_start(&self, i: usize) -> Option<(usize, usize)> {
+    /// Length of row `i`'s step list, and the samples where the step number changes (the first
+    /// sample of every step but the first) into `changes`. `None` for a null row.
+    pub fn step_changes(&self, i: usize, changes: &mut Vec<usize>) -> Option<usize> {
+        changes.clear();
         if self.list_nulls.is_some_and(|n| n.is_null(i)) {
             return None;
         }
@@ -189,14 +190,14 @@ impl<'a> StepColumn<'a> {
             Offsets::I32(o) => (o[i] as usize, o[i + 1] as usize),
             Offsets::I64(o) => (o[i] as usize, o[i + 1] as usize),
         };
-        fn last_change<T: PartialEq>(v: &[T]) -> usize {
-            (1..v.len()).rev().find(|&k| v[k] != v[k - 1]).unwrap_or(0)
+        fn collect<T: PartialEq>(v: &[T], out: &mut Vec<usize>) {
+            out.extend((1..v.len()).filter(|&k| v[k] != v[k - 1]));
         }
-        let start_of_last = match self.values {
-            StepValues::I32(v) => last_change(&v[start..end]),
-            StepValues::I64(v) => last_change(&v[start..end]),
-        };
-        Some((end - start, start_of_last))
+        match self.values {
+            StepValues::I32(v) => collect(&v[start..end], changes),
+            StepValues::I64(v) => collect(&v[start..end], changes),
+        }
+        Some(end - start)
     }
 }
 

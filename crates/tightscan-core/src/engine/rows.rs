@@ -15,10 +15,16 @@ pub(super) struct RowResult {
     /// Angle where the samples the detectors test start (later than the window's start after a
     /// controller event inside it).
     pub(super) tested_start: Option<f64>,
+    /// Angle of the last window sample the detectors test (earlier than the window's end when a
+    /// pause of the tool came too late in it to test after).
+    pub(super) tested_end: Option<f64>,
     pub(super) phases: Option<PhaseRow>,
     pub(super) friction: Option<FrictionEstimate>,
     /// Lag-1 autocorrelation of the window's noise model.
     pub(super) noise_lag1: Option<f64>,
+    /// Order of the window's noise autoregression: the samples pre-whitening takes from the
+    /// front of the window, which the break scan then lacks.
+    pub(super) noise_order: usize,
     pub(super) breaks: Option<BreakRow>,
     pub(super) residual: Option<ResidualRow>,
     pub(super) l1: Option<L1Row>,
@@ -117,9 +123,11 @@ impl RowResult {
             n_samples,
             window: None,
             tested_start: None,
+            tested_end: None,
             phases: None,
             friction: None,
             noise_lag1: None,
+            noise_order: 0,
             breaks: None,
             residual: None,
             l1: None,

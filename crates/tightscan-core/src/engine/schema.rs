@@ -200,6 +200,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("elastic_start_angle", ResultType::Float64, "deg", "start of the analysed elastic window"),
     ("elastic_end_angle", ResultType::Float64, "deg", "end of the analysed elastic window"),
     ("tested_start_angle", ResultType::Float64, "deg", "where the samples the detectors test start: the window's start, or later, after the last controller step change, unsampled pause or relaxation dip inside it"),
+    ("tested_end_angle", ResultType::Float64, "deg", "where the samples the detectors test end: the window's end, or earlier, before a pause or relaxation dip too late in the window to test after"),
     ("yield_angle", ResultType::Float64, "deg", "where the torque gradient falls below half the elastic one (null when it does not)"),
     ("peak_torque", ResultType::Float64, "Nm", "highest torque of the curve"),
     ("peak_angle", ResultType::Float64, "deg", "angle at the highest torque"),

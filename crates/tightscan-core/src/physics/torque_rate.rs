@@ -323,8 +323,13 @@ pub fn encoder_resolution(x: &[f64]) -> f64 {
 /// time (more than three times the window's median sample interval) rather than as a run of
 /// unchanged angle. Returns the first sample after the gap at which the torque has regained its
 /// last high before the gap (it relaxes as the tool slows, then winds up again faster than
-/// friction would raise it). `None` without such a gap.
-pub fn resumed_after_time_gap<T: Sample, S: Sample>(torque: &[T], time: &[S], window: ElasticWindow, scratch: &mut Vec<f64>) -> Option<usize> {
+/// friction would raise it), and that high. `None` without such a gap.
+pub fn resumed_after_time_gap<T: Sample, S: Sample>(
+    torque: &[T],
+    time: &[S],
+    window: ElasticWindow,
+    scratch: &mut Vec<f64>,
+) -> Option<(usize, usize)> {
     let (start, end) = (window.start, window.end);
     if end < start + 3 || time.len() < end {
         return None;
@@ -342,43 +347,52 @@ pub fn resumed_after_time_gap<T: Sample, S: Sample>(torque: &[T], time: &[S], wi
         high -= 1;
     }
     let level = torque[high].to_f64();
-    Some((gap..end).find(|&k| torque[k].to_f64() >= level).unwrap_or(end))
+    Some((high, (gap..end).find(|&k| torque[k].to_f64() >= level).unwrap_or(end)))
 }
 
-/// Where the torque has wound up again after the last relaxation dip of the window that no
-/// friction change explains. A tool that pauses or slows hard lets the torsion relax: the
-/// torque falls, then winds up again at many times the elastic rate once the tool turns
-/// (the real Rexroth runs pause inside the final step, and their recorder samples through it).
-/// A friction decrease also makes the torque fall, but at once (one sample), and then rises at
-/// the new, lower elastic rate; an intermittent change that ends jumps back at once too. So a
-/// dip counts when it falls by more than six noise sd (robust, from the detrended first
-/// differences) over at least three samples, and regains its level over at least three samples
-/// at three times the elastic torque rate `rate` or faster. Dips inside `stops` (recorded
-/// pauses, handled by [`stop_ranges`]) are skipped.
-/// Returns the first sample at which the torque has regained the level of the last such dip.
-pub fn resumed_after_relaxation<A: Sample, T: Sample>(
+/// The part of the window free of relaxation dips that no friction change explains. A tool
+/// that pauses or slows hard lets the torsion relax: the torque falls, then winds up again at
+/// many times the elastic rate once the tool turns (the real Rexroth runs pause inside the final
+/// step, and their recorder samples through it; between steps the torque falls to nothing and
+/// is wound up again within a degree or two). A friction decrease also makes the torque fall,
+/// but at once (one sample, a few through a filtered channel), and then rises at the new, lower
+/// elastic rate; an intermittent change that ends jumps back at once too. So a dip counts when
+/// it falls by more than six noise sd (robust, from the detrended first differences) over at
+/// least three samples, and regains the elastic line over at least three samples at three times
+/// the elastic torque rate `rate` or faster.
+///
+/// Whether the rewind is fast is judged where the torque regains its old level; the rewind has
+/// ended only where the torque is back on the elastic line it left, extended over the angle the
+/// rewind took (the level at the dip plus `rate` times the angle since): at the old level the
+/// socket is still winding up, and the kink where the rewind meets the line was a break (the
+/// Rexroth runs advance a degree or two while winding up). The search runs up to the curve's
+/// peak (`peak_index`), past the window's end; where the torque never regains the extended line
+/// (the controller stops at its target first), the old level serves.
+///
+/// The longer of the two parts is tested: a dip the curve comes back from with at least as many
+/// window samples after it as before it moves the window's start to where it came back; the
+/// first dip it comes back from later ends the window before the dip, and the samples from
+/// there on (the tail to the peak included) are not tested. (The real Rexroth runs pause a few
+/// degrees before the target: the part before the pause is then the one left.) Dips inside `stops` (recorded pauses, handled
+/// by [`stop_ranges`]) are skipped. `None` when no dip counts.
+pub fn without_relaxation<A: Sample, T: Sample>(
     angle: &[A],
     torque: &[T],
     window: ElasticWindow,
     rate: f64,
+    peak_index: usize,
     stops: &[(f64, f64)],
     scratch: &mut Vec<f64>,
-) -> Option<usize> {
+) -> Option<RelaxationFree> {
     let (start, end) = (window.start, window.end);
     if end < start + 4 || !(rate > 0.0) {
         return None;
     }
+    let last = peak_index.max(end - 1).min(angle.len().min(torque.len()) - 1);
     let (a, t) = (|i: usize| angle[i].to_f64(), |i: usize| torque[i].to_f64());
-    scratch.clear();
-    scratch.extend((start + 1..end).map(|i| (t(i) - t(i - 1)) - rate * (a(i) - a(i - 1))));
-    let mid = scratch.len() / 2;
-    let centre = *scratch.select_nth_unstable_by(mid, f64::total_cmp).1;
-    scratch.iter_mut().for_each(|d| *d = (*d - centre).abs());
-    let mad = *scratch.select_nth_unstable_by(mid, f64::total_cmp).1;
-    // First differences of white noise have sd sqrt(2) sigma; MAD to sd by 1.4826.
-    let noise_sd = 1.4826 * mad / std::f64::consts::SQRT_2;
+    let noise_sd = difference_noise_sd(angle, torque, window, rate, scratch);
     let a0 = a(start);
-    let mut resumed = None;
+    let mut found = None;
     let mut i = start + 1;
     while i < end {
         if t(i) >= t(i - 1) {
@@ -388,21 +402,72 @@ pub fn resumed_after_relaxation<A: Sample, T: Sample>(
         let high = i - 1;
         let level = t(high);
         let mut low = i;
-        while low + 1 < end && t(low + 1) <= t(low) {
+        while low < last && t(low + 1) <= t(low) {
             low += 1;
         }
         let drop = level - t(low);
         let in_stop = stops.iter().any(|&(lo, hi)| a(high) - a0 >= lo && a(high) - a0 <= hi);
         if drop > 6.0 * noise_sd && low - high >= 3 && !in_stop {
-            if let Some(k) = (low..end).find(|&k| t(k) >= level) {
-                if k - low >= 3 && drop >= 3.0 * rate * (a(k) - a(low)) {
-                    resumed = Some(k);
+            let regained = (low..=last).find(|&k| t(k) >= level);
+            if let Some(k_level) = regained {
+                if k_level - low >= 3 && drop >= 3.0 * rate * (a(k_level) - a(low)) {
+                    // `level` is the sample before the fall, a noise sd or so above the line on
+                    // average: the line is reached within a few noise sds of its extension.
+                    let line = |k: usize| level + rate * (a(k) - a(high)).max(0.0) - BACK_ON_LINE_SDS * noise_sd;
+                    let k = (k_level..=last).find(|&k| t(k) >= line(k)).unwrap_or(k_level);
+                    let tested_start = match found {
+                        Some(RelaxationFree::Resumed(w)) => w.start,
+                        _ => start,
+                    };
+                    if end.saturating_sub(k) >= high + 1 - tested_start.min(high + 1) {
+                        found = Some(RelaxationFree::Resumed(ElasticWindow { start: k, ..window }));
+                    } else {
+                        return Some(RelaxationFree::EndsBeforeDip(ElasticWindow { start: tested_start, end: high + 1, ..window }));
+                    }
                 }
             }
         }
         i = low + 1;
     }
-    resumed
+    found
+}
+
+/// How many noise sds below the extended elastic line a wound-up torque counts as back on it
+/// ([`without_relaxation`]): the line is extended from one sample, the last before the fall,
+/// which sits above the line by its noise.
+pub const BACK_ON_LINE_SDS: f64 = 3.0;
+
+/// Robust noise sd of the window's torque about the elastic line `rate`, from the first
+/// differences (their MAD; the differences of white noise have sd sqrt(2) sigma). A fall or a
+/// wind-up moves few differences, so the MAD hardly sees them.
+pub fn difference_noise_sd<A: Sample, T: Sample>(
+    angle: &[A],
+    torque: &[T],
+    window: ElasticWindow,
+    rate: f64,
+    scratch: &mut Vec<f64>,
+) -> f64 {
+    let (a, t) = (|i: usize| angle[i].to_f64(), |i: usize| torque[i].to_f64());
+    scratch.clear();
+    scratch.extend((window.start + 1..window.end).map(|i| (t(i) - t(i - 1)) - rate * (a(i) - a(i - 1))));
+    if scratch.is_empty() {
+        return 0.0;
+    }
+    let mid = scratch.len() / 2;
+    let centre = *scratch.select_nth_unstable_by(mid, f64::total_cmp).1;
+    scratch.iter_mut().for_each(|d| *d = (*d - centre).abs());
+    let mad = *scratch.select_nth_unstable_by(mid, f64::total_cmp).1;
+    1.4826 * mad / std::f64::consts::SQRT_2
+}
+
+/// What [`without_relaxation`] made of the window.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RelaxationFree {
+    /// The window starts where the torque came back from its last relaxation dip.
+    Resumed(ElasticWindow),
+    /// The window ends before a dip the torque did not come back from in time; nothing after
+    /// it is friction.
+    EndsBeforeDip(ElasticWindow),
 }
 
 /// Number of blocks for a window of `len` samples.
@@ -491,5 +556,57 @@ mod tests {
         assert_eq!(phases(&flat), Err(WindowError::FlatTorque));
         let step: Vec<f32> = (0..50).map(|i| if i < 45 { 0.0 } else { 1.0 }).collect();
         assert!(matches!(phases(&step), Err(WindowError::TooShort(_))));
+    }
+
+    /// A straight elastic line, 0.25 deg per sample at rate 0.1 Nm/deg, with a small
+    /// deterministic ripple for noise, and `edit` applied to it.
+    fn line_with(edit: impl Fn(usize, &mut f64)) -> (Vec<f64>, Vec<f64>) {
+        let angle: Vec<f64> = (0..400).map(|i| i as f64 * 0.25).collect();
+        let torque = (0..400)
+            .map(|i| {
+                let mut t = 1.0 + 0.1 * angle[i] + 0.002 * ((i * 7919 % 13) as f64 - 6.0) / 6.0;
+                edit(i, &mut t);
+                t
+            })
+            .collect();
+        (angle, torque)
+    }
+
+    #[test]
+    fn relaxation_dips_move_or_end_the_tested_part() {
+        let window = ElasticWindow { start: 0, end: 380, peak: 11.0 };
+        let run = |torque: &[f64]| {
+            let angle: Vec<f64> = (0..400).map(|i| i as f64 * 0.25).collect();
+            without_relaxation(&angle, torque, window, 0.1, 399, &[], &mut Vec::new())
+        };
+        // A dip of 1 Nm over 5 samples, wound up again over 6 (at ~7 times the elastic rate).
+        let dip = |at: usize| {
+            move |i: usize, t: &mut f64| {
+                if (at..at + 5).contains(&i) {
+                    *t -= 0.2 * (i - at + 1) as f64;
+                } else if (at + 5..at + 11).contains(&i) {
+                    *t -= 1.0 - 0.16 * (i - at - 4) as f64;
+                }
+            }
+        };
+        // Early: tested from where the torque is back on the line, past the wind-up.
+        let (_, early) = line_with(dip(100));
+        match run(&early) {
+            Some(RelaxationFree::Resumed(w)) => assert!((110..=113).contains(&w.start), "{w:?}"),
+            other => panic!("{other:?}"),
+        }
+        // Late (fewer samples after it than before): the part before it.
+        let (_, late) = line_with(dip(330));
+        match run(&late) {
+            Some(RelaxationFree::EndsBeforeDip(w)) => assert_eq!((w.start, w.end), (0, 330)),
+            other => panic!("{other:?}"),
+        }
+        // A friction decrease: the torque falls at once and goes on at a lower rate.
+        let (_, drop) = line_with(|i, t| {
+            if i >= 200 {
+                *t -= 0.3 * (*t - 1.0);
+            }
+        });
+        assert_eq!(run(&drop), None);
     }
 }

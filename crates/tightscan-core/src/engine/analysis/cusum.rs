@@ -36,7 +36,7 @@ impl Detector {
             return Err(TighteningStatus::TooShort {
                 samples: len,
                 minimum: cfg.zone.min_samples,
-                what: "elastic window",
+                what: s.tested_part,
             });
         }
         let n_blocks = block_count(len, &cfg.blocks);
@@ -45,14 +45,14 @@ impl Detector {
             return Err(TighteningStatus::TooShort {
                 samples: len,
                 minimum: needed_blocks * cfg.blocks.min_block_samples,
-                what: "elastic window",
+                what: s.tested_part,
             });
         }
         // Blocks of the whitened samples, cut by angle (stop samples are already out of them;
         // a block that touches a stop is left out below, as the wind-up after it is not friction).
         let (lag, n) = (s.lag, s.n_window);
         if n < lag + 2 {
-            return Err(TighteningStatus::TooShort { samples: n, minimum: lag + 2, what: "elastic window" });
+            return Err(TighteningStatus::TooShort { samples: n, minimum: lag + 2, what: s.tested_part });
         }
         let gain = 1.0 - s.noise.coefficients.iter().sum::<f64>();
         block_stats_whitened(&s.x[lag..n], &s.wx[lag..n], &s.wy[lag..n], n_blocks, gain, &mut s.blocks);

@@ -16,9 +16,9 @@ use crate::engine::status::TighteningStatus;
 use crate::engine::Detector;
 use crate::physics::phases::{find_phases, PhaseScratch, Phases, MIN_FIT_SAMPLES};
 use crate::detectors::noise::{estimate_noise, whiten, NoiseModel, NoiseScratch};
-use crate::detectors::breakpoint::MIN_SEGMENT;
 use crate::physics::torque_rate::{
-    encoder_resolution, resumed_after_relaxation, resumed_after_time_gap, stop_ranges, Blocks, ElasticWindow, WindowError,
+    difference_noise_sd, encoder_resolution, resumed_after_time_gap, stop_ranges, without_relaxation, RelaxationFree,
+    BACK_ON_LINE_SDS, Blocks, ElasticWindow, WindowError,
 };
 
 use friction::FrictionInput;
@@ -63,6 +63,11 @@ pub(super) struct Scratch {
     /// whitened samples are of the weighted ones.
     weights: Vec<f64>,
     weighted: Vec<f64>,
+    /// What part of the elastic window is tested, as a status names it (the window before or
+    /// after a pause of the tool, or the whole window).
+    tested_part: &'static str,
+    /// Where the controller's step changes, in the current tightening.
+    step_changes: Vec<usize>,
 }
 
 /// Range of the degrees of freedom of the t fitted to a heavy-tailed window
@@ -75,6 +80,14 @@ const MAX_T_DEGREES: f64 = 60.0;
 const KURTOSIS_Z: f64 = 2.326;
 /// Fewer whitened samples than this leave the kurtosis too uncertain to act on.
 const MIN_KURTOSIS_SAMPLES: usize = 30;
+
+/// The part of the elastic window the detectors test, as a `too_short` status names it: the
+/// whole window, or the part a controller event leaves (a step change, or a pause of the tool
+/// after which the torque relaxed and was wound up again; [`without_relaxation`]).
+const TESTED_WHOLE: &str = "elastic window";
+const TESTED_AFTER_STEP: &str = "elastic window after the controller's last step change";
+const TESTED_AFTER_PAUSE: &str = "elastic window after the tool's last pause";
+const TESTED_BEFORE_PAUSE: &str = "elastic window before the tool paused and the torque relaxed";
 
 /// Samples per block of the local lines the noise model is estimated from.
 const NOISE_BLOCK: usize = 32;
@@ -233,45 +246,71 @@ fn weigh(v: &[f64], weights: &[f64], out: &mut Vec<f64>) {
 struct Curve<'a> {
     /// Row of the tightening in the batch.
     row: usize,
-    /// First sample of the tightening's last controller step, when the table has steps.
-    last_step: Option<usize>,
+    /// Samples where the controller's step changes (empty without a step channel).
+    step_changes: &'a [usize],
     /// The time channel, when the table has it.
     time: Option<Samples<'a>>,
 }
 
 /// The part of the elastic window the detectors test when the controller changed step inside
-/// it: from where the last step has regained the torque the previous step had reached. A step
-/// change stops or slows the tool (the torque relaxes, then winds up again faster than friction
-/// would raise it) and changes the speed, and with it the speed-dependent friction: a break at
-/// the change is the controller's, not a friction change (real Rexroth runs: pre-tightening to
-/// 1.1 Nm, then the final step at low speed, both inside the elastic window).
-fn last_step_window<T: Sample>(torque: &[T], window: ElasticWindow, last_step: Option<usize>) -> ElasticWindow {
-    match last_step {
-        Some(c) if c > window.start && c < window.end => {
-            let level = torque[window.start..c].iter().map(|t| t.to_f64()).fold(f64::NEG_INFINITY, f64::max);
-            let regained = (c..window.end).find(|&k| torque[k].to_f64() >= level).unwrap_or(c);
-            ElasticWindow { start: regained, ..window }
-        }
-        _ => window,
-    }
+/// it: from where the last step inside the window is back on the elastic line the step before
+/// had reached (its highest torque, extended at the elastic torque rate `rate` over the angle
+/// since). A step change stops or slows the tool (the torque relaxes, then winds up again faster
+/// than friction would raise it) and changes the speed, and with it the speed-dependent
+/// friction: a break at the change is the controller's, not a friction change (real Rexroth
+/// runs: pre-tightening to 1.1 Nm, then the final step at low speed, both inside the elastic
+/// window; a few change from thread forming to pre-tightening inside it as well). The old level
+/// alone is reached while the socket still winds up, and the kink where the wind-up meets the
+/// line was found as a break.
+fn last_step_window<A: Sample, T: Sample>(
+    angle: &[A],
+    torque: &[T],
+    window: ElasticWindow,
+    rate: f64,
+    step_changes: &[usize],
+    scratch: &mut Vec<f64>,
+) -> ElasticWindow {
+    let Some(&c) = step_changes.iter().rev().find(|&&c| c > window.start && c < window.end) else {
+        return window;
+    };
+    let high = (window.start..c).max_by(|&p, &q| torque[p].to_f64().total_cmp(&torque[q].to_f64())).unwrap_or(c);
+    let (level, from) = (torque[high].to_f64(), angle[high].to_f64());
+    let rate = if rate > 0.0 { rate } else { 0.0 };
+    // The highest torque sits above the line by its noise: back on the line within a few sds.
+    let tolerance = BACK_ON_LINE_SDS * difference_noise_sd(angle, torque, window, rate, scratch);
+    let on_line = |k: &usize| torque[*k].to_f64() >= level + rate * (angle[*k].to_f64() - from).max(0.0) - tolerance;
+    let regained = (c..window.end)
+        .find(on_line)
+        .or_else(|| (c..window.end).find(|&k| torque[k].to_f64() >= level))
+        .unwrap_or(c);
+    ElasticWindow { start: regained, ..window }
 }
 
 /// The part of the window after the last stop the recorder did not sample (a gap in the time
-/// channel, see [`resumed_after_time_gap`]), when that part is long enough for the break scan.
-/// A controller that pauses inside the final rise starts a new segment: on the real Rexroth
-/// runs the torque is nearly flat before the pause and rises after it, and one line through
-/// both is a misfit, not a friction change. A stop the recorder did sample (a run of unchanged
-/// angle, the simulator's CSDT pause) joins one elastic line and is only left out
-/// ([`stop_ranges`]).
-fn after_unsampled_stop<T: Sample>(torque: &[T], window: ElasticWindow, time: Option<Samples<'_>>, scratch: &mut Vec<f64>) -> ElasticWindow {
+/// channel, see [`resumed_after_time_gap`]), when it is at least as long as the part before;
+/// otherwise the part before the stop, and the curve past it is not tested (the second value:
+/// true when the window was cut there). A controller that pauses inside the final rise starts a
+/// new segment: on the real Rexroth runs the torque is nearly flat before the pause and rises
+/// after it, and one line through both is a misfit, not a friction change. A stop the recorder
+/// did sample (a run of unchanged angle, the simulator's CSDT pause) joins one elastic line and
+/// is only left out ([`stop_ranges`]).
+fn around_unsampled_stop<T: Sample>(
+    torque: &[T],
+    window: ElasticWindow,
+    time: Option<Samples<'_>>,
+    scratch: &mut Vec<f64>,
+) -> (ElasticWindow, bool) {
     let resumed = match time {
         Some(Samples::F32(t)) => resumed_after_time_gap(torque, t, window, scratch),
         Some(Samples::F64(t)) => resumed_after_time_gap(torque, t, window, scratch),
         None => None,
     };
     match resumed {
-        Some(k) if window.end.saturating_sub(k) >= 2 * MIN_SEGMENT => ElasticWindow { start: k, ..window },
-        _ => window,
+        Some((high, k)) if window.end.saturating_sub(k) >= high + 1 - window.start.min(high + 1) => {
+            (ElasticWindow { start: k, ..window }, false)
+        }
+        Some((high, _)) => (ElasticWindow { end: high + 1, ..window }, true),
+        None => (window, false),
     }
 }
 
@@ -381,24 +420,29 @@ impl Detector {
                 n,
             );
         }
-        let last_step = match table.step.as_ref().and_then(|c| c.last_step_start(i)) {
-            Some((len, _)) if len != n => {
-                return RowResult::failed(TighteningStatus::LengthMismatch { channel: schema::STEP, len, expected: n }, n)
+        let mut step_changes = std::mem::take(&mut scratch.step_changes);
+        match table.step.as_ref().and_then(|c| c.step_changes(i, &mut step_changes)) {
+            Some(len) if len != n => {
+                scratch.step_changes = step_changes;
+                return RowResult::failed(TighteningStatus::LengthMismatch { channel: schema::STEP, len, expected: n }, n);
             }
-            other => other.map(|(_, start)| start),
-        };
+            Some(_) => {}
+            None => step_changes.clear(),
+        }
         let friction = self.friction_input(table, i, scratch);
         let time = table.channel(schema::TIME).and_then(|c| match c.row(i) {
             ChannelRow::Present { samples, .. } => Some(samples),
             ChannelRow::Null => None,
         });
-        let curve = Curve { row: i, last_step, time };
-        match (angle, torque) {
+        let curve = Curve { row: i, step_changes: &step_changes, time };
+        let result = match (angle, torque) {
             (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, curve, scratch),
             (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, curve, scratch),
             (Samples::F64(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, curve, scratch),
             (Samples::F64(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, curve, scratch),
-        }
+        };
+        scratch.step_changes = step_changes;
+        result
     }
 
     /// The steps of one curve. A step that fails after the phases are found still reports what
@@ -417,23 +461,44 @@ impl Detector {
             Ok(p) => p,
             Err(status) => return RowResult::failed(status, n),
         };
-        let window = last_step_window(torque, phases.window, curve.last_step);
+        let window = last_step_window(angle, torque, phases.window, phases.torque_rate, curve.step_changes, &mut s.residuals);
         // An unknown thread is named first: it is a fix to the data that applies to every row.
         let (friction_row, friction_status) = match friction {
             Ok(f) => (self.friction_row(torque, &phases, f, s), TighteningStatus::Ok),
             Err(status) => (None, status),
         };
-        let window = after_unsampled_stop(torque, window, curve.time, &mut s.residuals);
+        s.tested_part = if window.start > phases.window.start { TESTED_AFTER_STEP } else { TESTED_WHOLE };
+        let (window, cut_at_gap) = around_unsampled_stop(torque, window, curve.time, &mut s.residuals);
+        if cut_at_gap {
+            s.tested_part = TESTED_BEFORE_PAUSE;
+        } else if window.start > phases.window.start && s.tested_part == TESTED_WHOLE {
+            s.tested_part = TESTED_AFTER_PAUSE;
+        }
         stop_ranges(angle, torque, window, &mut s.stops);
-        let window = match resumed_after_relaxation(angle, torque, window, phases.torque_rate, &s.stops, &mut s.residuals) {
-            Some(k) if window.end.saturating_sub(k) >= 2 * MIN_SEGMENT => {
-                let resumed = ElasticWindow { start: k, ..window };
+        let mut tail_end = (phases.yield_angle.is_none() && !cut_at_gap).then_some(phases.peak_index);
+        let relaxation = without_relaxation(
+            angle,
+            torque,
+            window,
+            phases.torque_rate,
+            phases.peak_index,
+            &s.stops,
+            &mut s.residuals,
+        );
+        let window = match relaxation {
+            Some(RelaxationFree::Resumed(resumed)) => {
+                s.tested_part = TESTED_AFTER_PAUSE;
                 stop_ranges(angle, torque, resumed, &mut s.stops);
                 resumed
             }
-            _ => window,
+            Some(RelaxationFree::EndsBeforeDip(cut)) => {
+                s.tested_part = TESTED_BEFORE_PAUSE;
+                tail_end = None;
+                stop_ranges(angle, torque, cut, &mut s.stops);
+                cut
+            }
+            None => window,
         };
-        let tail_end = phases.yield_angle.is_none().then_some(phases.peak_index);
         s.window_samples(angle, torque, window, tail_end);
         let breaks = self.break_row(angle, s);
         let residual = self.residual_row(angle, row, s);
@@ -448,6 +513,7 @@ impl Detector {
             n_samples: n,
             window: Some((angle[phases.window.start].to_f64(), angle[phases.window.end - 1].to_f64())),
             tested_start: Some(angle[window.start].to_f64()),
+            tested_end: window.end.checked_sub(1).map(|last| angle[last].to_f64()),
             phases: Some(PhaseRow {
                 prevailing_torque: phases.prevailing_torque,
                 snug_angle: phases.snug_angle,
@@ -458,6 +524,7 @@ impl Detector {
             }),
             friction: friction_row,
             noise_lag1: Some(s.noise.lag1_autocorrelation()),
+            noise_order: s.lag,
             breaks,
             residual,
             l1,

@@ -102,6 +102,19 @@ fn impulse_response(phi: &[f64], len: usize) -> Vec<f64> {
     psi
 }
 
+/// Consecutive blocks of `block` samples of `x`, `y` (the last takes the remainder; none when
+/// fewer than `block` samples), each with its least-squares line `(intercept, slope)`.
+fn local_lines<'a>(x: &'a [f64], y: &'a [f64], block: usize) -> impl Iterator<Item = (&'a [f64], &'a [f64], (f64, f64))> + 'a {
+    let n = x.len().min(y.len());
+    let n_blocks = n.checked_div(block).unwrap_or(0);
+    (0..n_blocks).map(move |b| {
+        let lo = b * block;
+        let hi = if b + 1 == n_blocks { n } else { lo + block };
+        let (xs, ys) = (&x[lo..hi], &y[lo..hi]);
+        (xs, ys, super::least_squares_line(xs, ys))
+    })
+}
+
 /// Autocovariances at lags `0..=max_lag` of the residuals of local least-squares lines fitted to
 /// consecutive blocks of `block` samples (the last block takes the remainder), pooled over the
 /// blocks: lag products are only taken within a block. A block whose residual variance exceeds
@@ -113,15 +126,10 @@ fn local_autocovariances(x: &[f64], y: &[f64], block: usize, max_lag: usize, res
     if n < block {
         return None;
     }
-    let n_blocks = n / block;
     // Per block: the lag product sums and their pair counts.
-    let mut per_block: Vec<(Vec<f64>, Vec<f64>)> = Vec::with_capacity(n_blocks);
-    for b in 0..n_blocks {
-        let lo = b * block;
-        let hi = if b + 1 == n_blocks { n } else { lo + block };
-        let (xs, ys) = (&x[lo..hi], &y[lo..hi]);
+    let mut per_block: Vec<(Vec<f64>, Vec<f64>)> = Vec::with_capacity(n / block);
+    for (xs, ys, (a, b)) in local_lines(x, y, block) {
         let m = xs.len() as f64;
-        let (a, b) = super::least_squares_line(xs, ys);
         residual.clear();
         residual.extend(xs.iter().zip(ys).map(|(xi, yi)| yi - a - b * xi));
         let mut sums = vec![0.0; max_lag + 1];
@@ -386,14 +394,8 @@ pub const SD_BLOCK: usize = 8;
 /// blocks of `y` against `x` (the last block takes the remainder).
 fn block_levels(x: &[f64], y: &[f64], block: usize, out: &mut Vec<(f64, f64)>) {
     out.clear();
-    let n = x.len().min(y.len());
-    let n_blocks = n / block;
-    for b in 0..n_blocks {
-        let lo = b * block;
-        let hi = if b + 1 == n_blocks { n } else { lo + block };
-        let (xs, ys) = (&x[lo..hi], &y[lo..hi]);
+    for (xs, ys, (a, b)) in local_lines(x, y, block) {
         let m = xs.len() as f64;
-        let (a, b) = super::least_squares_line(xs, ys);
         let rss: f64 = xs.iter().zip(ys).map(|(xi, yi)| (yi - a - b * xi).powi(2)).sum();
         out.push((ys.iter().sum::<f64>() / m, rss / (m - 2.0)));
     }

@@ -419,7 +419,7 @@ pub fn without_relaxation<A: Sample, T: Sample>(
                         Some(RelaxationFree::Resumed(w)) => w.start,
                         _ => start,
                     };
-                    if end.saturating_sub(k) >= high + 1 - tested_start.min(high + 1) {
+                    if after_is_longer(tested_start, high, k, end) {
                         found = Some(RelaxationFree::Resumed(ElasticWindow { start: k, ..window }));
                     } else {
                         return Some(RelaxationFree::EndsBeforeDip(ElasticWindow { start: tested_start, end: high + 1, ..window }));
@@ -430,6 +430,14 @@ pub fn without_relaxation<A: Sample, T: Sample>(
         i = low + 1;
     }
     found
+}
+
+/// True when a controller event between samples `high` (the last before it) and `resumed` (the
+/// first after it) leaves at least as many window samples after it (up to `end`) as before it
+/// (from `start`): the side the detectors then test ([`without_relaxation`], and the engine for
+/// unsampled pauses).
+pub fn after_is_longer(start: usize, high: usize, resumed: usize, end: usize) -> bool {
+    end.saturating_sub(resumed) >= (high + 1).saturating_sub(start)
 }
 
 /// How many noise sds below the extended elastic line a wound-up torque counts as back on it

@@ -17,7 +17,7 @@ use crate::engine::Detector;
 use crate::physics::phases::{find_phases, PhaseScratch, Phases, MIN_FIT_SAMPLES};
 use crate::detectors::noise::{estimate_noise, whiten, NoiseModel, NoiseScratch};
 use crate::physics::torque_rate::{
-    difference_noise_sd, encoder_resolution, resumed_after_time_gap, stop_ranges, without_relaxation, RelaxationFree,
+    after_is_longer, difference_noise_sd, encoder_resolution, resumed_after_time_gap, stop_ranges, without_relaxation, RelaxationFree,
     BACK_ON_LINE_SDS, Blocks, ElasticWindow, WindowError,
 };
 
@@ -306,9 +306,7 @@ fn around_unsampled_stop<T: Sample>(
         None => None,
     };
     match resumed {
-        Some((high, k)) if window.end.saturating_sub(k) >= high + 1 - window.start.min(high + 1) => {
-            (ElasticWindow { start: k, ..window }, false)
-        }
+        Some((high, k)) if after_is_longer(window.start, high, k, window.end) => (ElasticWindow { start: k, ..window }, false),
         Some((high, _)) => (ElasticWindow { end: high + 1, ..window }, true),
         None => (window, false),
     }

@@ -53,13 +53,15 @@ def test_size_under_moderately_coloured_noise_is_nominal() -> None:
 @pytest.mark.slow
 def test_size_under_strongly_coloured_noise_is_bounded() -> None:
     # AR(1) with phi = 0.85 (a first-order low-pass of about 50 Hz on a 2 kHz channel). Before
-    # pre-whitening the rule alarmed on 86 % of these; now about 5 %. The goal (at most
-    # 1.5 x alpha) is not met yet: the AR fit's sampling error near phi = 1 leaves residual
-    # correlation. This guards the gain until it is.
+    # pre-whitening the rule alarmed on 86 % of these; 5 % with the AR model fitted to the
+    # window and three windows before it (median phi 0.80); 3.4 % with the rundown in the fit,
+    # the moments solved exactly and local quadratics (median 0.87). The goal (at most
+    # 1.5 x alpha) is not met yet: the AR fit's sampling error near phi = 1 still leaves
+    # residual correlation in some windows. This guards the gain until it is.
     results = tightscan.detect_batch(_with_ar1_noise(0.85, seed=72))
-    assert _false_alarm_rate(results) <= 0.08
+    assert _false_alarm_rate(results) <= 0.05
     lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
-    assert 0.75 <= lag1 <= 0.9
+    assert 0.82 <= lag1 <= 0.9
 
 
 @pytest.mark.slow
@@ -69,12 +71,12 @@ def test_size_under_noise_growing_with_the_torque_is_bounded() -> None:
     # variance alarm on the loud end (Chow's end test first): 20 % of these clean CST curves
     # before the detectors weighted the samples by the noise growth they measure
     # (NoiseModel::sd_slope), 2.1 % after (1.2 % with the same noise made constant in each
-    # curve). The goal, 1.5 x alpha, is not met yet; this guards the gain until it is.
+    # curve), 1.5 % with the noise model's rundown history. The goal is 1.5 x alpha.
     import independent_generator as ig
 
     curves, _ = ig.generate(ig.GeneratorConfig(n=N_CURVES, seed=73, strategy="CST", encoder_step_deg=0.1))
     results = tightscan.detect_batch(curves)
-    assert _false_alarm_rate(results) <= 0.035
+    assert _false_alarm_rate(results) <= 0.025
 
 
 @pytest.mark.slow
@@ -83,8 +85,8 @@ def test_size_under_heavy_tailed_noise_is_bounded() -> None:
     # generator's CST curves. The break scan and Chow's end test are F tests whose size holds
     # for Gaussian noise: 8.7 % false alarms before heavy-tailed windows were made Gaussian by
     # normal scores under a fitted t (Scratch::gaussianise_heavy_tails), 5.1 % after (n = 1,000;
-    # 5.7 % at this seed and size). The goal, 1.5 x alpha, is not met
-    # yet; this guards the gain until it is.
+    # 5.7 % at this seed and size; 4.0 % with the noise model's rundown history). The goal,
+    # 1.5 x alpha, is not met yet; this guards the gain until it is.
     import independent_generator as ig
 
     noise = ig.NoiseConfig(colour="t4")
@@ -92,4 +94,24 @@ def test_size_under_heavy_tailed_noise_is_bounded() -> None:
         ig.GeneratorConfig(n=N_CURVES, seed=74, strategy="CST", encoder_step_deg=0.1, noise=noise)
     )
     results = tightscan.detect_batch(curves)
-    assert _false_alarm_rate(results) <= 0.07
+    assert _false_alarm_rate(results) <= 0.055
+
+
+@pytest.mark.slow
+def test_size_under_the_independent_generators_coloured_noise_is_bounded() -> None:
+    # The independent generator's transducer noise (0.01 Nm + 0.4 % of the reading) made AR(1)
+    # with phi 0.85, CST: 8.3 % false alarms with the AR model fitted to the window and three
+    # windows before it (median phi 0.78: too few samples, and a fixed-point bias correction
+    # that stopped short), 3.8 % with the rundown's samples, local quadratics over 64-sample
+    # blocks and the moment equations solved exactly (median 0.85). The goal, 1.5 x alpha, is
+    # not met yet; this guards the gain until it is.
+    import independent_generator as ig
+
+    noise = ig.NoiseConfig(colour="ar1", phi=0.85)
+    curves, _ = ig.generate(
+        ig.GeneratorConfig(n=N_CURVES, seed=75, strategy="CST", encoder_step_deg=0.1, noise=noise)
+    )
+    results = tightscan.detect_batch(curves)
+    assert _false_alarm_rate(results) <= 0.055
+    lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
+    assert 0.82 <= lag1 <= 0.88

@@ -140,11 +140,13 @@ def test_every_step_change_in_the_window_counts() -> None:
 def test_s01_control_group_claims_are_bounded(rexroth_s01: pa.Table) -> None:
     # s01 is a control group: no friction fault inside any tightening. The rule claimed a change
     # in 99.4 % of the decided runs before the noise model and the controller-event handling,
-    # 8.8 % before pauses late in the window ended it and every step change counted; now in
-    # 1.3 % (35 of 2,739), inside the goal of 2 %.
+    # 8.8 % before pauses late in the window ended it and every step change counted; 1.3 %
+    # (35 of 2,755) after; 0.64 % (16 of 2,501) with the noise model fitted to the rundown as
+    # well (its AR order, and so the fewest samples a window needs, is higher on these
+    # filtered channels). Goal: at most 2 %.
     results = tightscan.detect_batch(rexroth_s01)
     decided = [v for v in results["change_detected"].to_pylist() if v is not None]
-    assert len(decided) >= 2600
+    assert len(decided) >= 2450
     assert float(np.mean(decided)) <= 0.02
     # Every undecided run says why, and names the part of the window it could not test.
     statuses = results["status"].to_pylist()

@@ -50,6 +50,9 @@ pub struct NoiseModel {
     /// `1 + sd_slope * level` (level: the signal itself, torque in Nm). 0 when the local
     /// residuals show no significant growth ([`sd_slope`]).
     pub sd_slope: f64,
+    /// Standard error of `ln(1 - sum coefficients)` ([`gain_log_se`]): how uncertain the
+    /// long-run variance of the whitened window is, for tests that average over it.
+    pub gain_log_se: f64,
 }
 
 impl NoiseModel {
@@ -130,6 +133,7 @@ fn local_autocovariances(
     max_lag: usize,
     sd_slope: f64,
     residual: &mut Vec<f64>,
+    kept: &mut Vec<(Vec<f64>, Vec<f64>)>,
 ) -> Option<Vec<f64>> {
     let n = x.len().min(y.len());
     let blocks = segments
@@ -166,7 +170,8 @@ fn local_autocovariances(
     let median = *variances.select_nth_unstable_by(mid, f64::total_cmp).1;
     let mut gamma = vec![0.0; max_lag + 1];
     let mut count = vec![0.0; max_lag + 1];
-    for (sums, pairs) in &per_block {
+    kept.clear();
+    for (sums, pairs) in per_block {
         if sums[0] / pairs[0].max(1.0) > OUTLYING_BLOCK_VARIANCE * median {
             continue;
         }
@@ -174,6 +179,7 @@ fn local_autocovariances(
             gamma[lag] += sums[lag];
             count[lag] += pairs[lag];
         }
+        kept.push((sums, pairs));
     }
     if count[0] <= 0.0 || gamma[0] <= 0.0 {
         return None;
@@ -375,8 +381,8 @@ pub fn estimate_noise_in(x: &[f64], y: &[f64], segments: &[std::ops::Range<usize
     let block = block.max(MIN_NOISE_BLOCK);
     block_levels(x, y, SD_BLOCK, &mut scratch.levels);
     let sd_slope = sd_slope(&scratch.levels);
-    let Some(observed) = local_autocovariances(x, y, segments, block, MAX_AR_ORDER, sd_slope, &mut scratch.residual) else {
-        return NoiseModel { coefficients: Vec::new(), sd_slope };
+    let Some(observed) = local_autocovariances(x, y, segments, block, MAX_AR_ORDER, sd_slope, &mut scratch.residual, &mut scratch.blocks) else {
+        return NoiseModel { sd_slope, ..NoiseModel::default() };
     };
     let n = x.len() as f64;
     // Blocks are `block` long but for the last, which takes the remainder; the weights of the
@@ -398,7 +404,81 @@ pub fn estimate_noise_in(x: &[f64], y: &[f64], segments: &[std::ops::Range<usize
         }
     }
     let phi = best.1;
-    NoiseModel { coefficients: phi, sd_slope }
+    let gain_log_se = gain_log_se(&scratch.blocks, &phi, &weights, block);
+    NoiseModel { coefficients: phi, sd_slope, gain_log_se }
+}
+
+/// Nodes and weights of the 5-point Gauss-Hermite rule for a standard normal (probabilists'
+/// Hermite polynomial He_5: roots 0, +-sqrt(5 -+ sqrt(10)); weights 5! / (25 He_4(z)^2)): the
+/// tests that average over the whitening's uncertainty ([`NoiseModel::gain_log_se`]) use it.
+pub const NORMAL_NODES: [(f64, f64); 5] = [
+    (0.0, 8.0 / 15.0),
+    (1.355_626_179_974_266, 0.222_075_922_005_612_6),
+    (-1.355_626_179_974_266, 0.222_075_922_005_612_6),
+    (2.856_970_013_872_806, 0.011_257_411_327_720_69),
+    (-2.856_970_013_872_806, 0.011_257_411_327_720_69),
+];
+
+/// Groups of consecutive blocks the jackknife of [`gain_log_se`] leaves out in turn.
+const JACKKNIFE_GROUPS: usize = 16;
+
+/// Standard error of `ln(1 - sum phi)`, the log of the whitening filter's gain at frequency 0,
+/// by the grouped delete-a-group jackknife over the blocks (Quenouille; Efron and Stein 1981):
+/// each group of consecutive blocks left out in turn, the moments re-pooled and re-solved from
+/// the full fit. That gain is what a whitened test's long-run variance depends on: whitening
+/// with an estimate whose gain is off by a factor `r` leaves `r^2` times the long-run variance
+/// the white-noise tables assume. 0 for white noise (no coefficients) and where fewer than
+/// four groups exist.
+fn gain_log_se(blocks: &[(Vec<f64>, Vec<f64>)], phi: &[f64], weights: &[Vec<f64>], block: usize) -> f64 {
+    let p = phi.len();
+    let groups = JACKKNIFE_GROUPS.min(blocks.len());
+    if p == 0 || groups < 4 {
+        return 0.0;
+    }
+    let log_gain = |c: &[f64]| (1.0 - c.iter().sum::<f64>()).max(f64::MIN_POSITIVE).ln();
+    let mut total = (vec![0.0; p + 1], vec![0.0; p + 1]);
+    for (sums, pairs) in blocks {
+        for h in 0..=p {
+            total.0[h] += sums[h];
+            total.1[h] += pairs[h];
+        }
+    }
+    let start = (phi.to_vec(), {
+        let gamma: Vec<f64> = (0..=p).map(|h| total.0[h] / total.1[h].max(1.0)).collect();
+        gamma[0] - phi.iter().zip(&gamma[1..]).map(|(a, g)| a * g).sum::<f64>()
+    });
+    let mut estimates = Vec::with_capacity(groups);
+    for g in 0..groups {
+        let (lo, hi) = (g * blocks.len() / groups, (g + 1) * blocks.len() / groups);
+        let mut sums = total.0.clone();
+        let mut pairs = total.1.clone();
+        for (bs, bp) in &blocks[lo..hi] {
+            for h in 0..=p {
+                sums[h] -= bs[h];
+                pairs[h] -= bp[h];
+            }
+        }
+        if !(pairs[0] > 0.0 && sums[0] > 0.0) {
+            continue;
+        }
+        let observed: Vec<f64> = (0..=p).map(|h| if pairs[h] > 0.0 { sums[h] / pairs[h] } else { 0.0 }).collect();
+        let (c, _) = solve_moments(&observed, &start, weights, block);
+        estimates.push(log_gain(&c));
+    }
+    let k = estimates.len();
+    if k < 4 {
+        return 0.0;
+    }
+    // Robust spread of the leave-a-group-out estimates (1.4826 MAD for their sd; the
+    // jackknife's se is sqrt(k - 1) times that sd): a friction change's kink sits in one
+    // group, and its estimate alone must not pass for sampling error.
+    let median = |v: &mut Vec<f64>| {
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let centre = median(&mut estimates);
+    let mut deviations: Vec<f64> = estimates.iter().map(|e| (e - centre).abs()).collect();
+    ((k - 1) as f64).sqrt() * 1.4826 * median(&mut deviations)
 }
 
 /// Largest partial autocorrelation the moment solve may reach: a unit root has no finite
@@ -631,6 +711,8 @@ pub fn whiten(v: &[f64], phi: &[f64], out: &mut Vec<f64>) {
 #[derive(Clone, Debug, Default)]
 pub struct NoiseScratch {
     residual: Vec<f64>,
+    /// (lag product sums, pair counts) of each block kept for the moments.
+    blocks: Vec<(Vec<f64>, Vec<f64>)>,
     /// (mean level, residual variance) of each block kept.
     levels: Vec<(f64, f64)>,
 }
@@ -752,7 +834,7 @@ mod tests {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
         let mut scratch = NoiseScratch::default();
         let phi = [1.2, -0.4];
-        let want = NoiseModel { coefficients: phi.to_vec(), sd_slope: 0.0 }.lag1_autocorrelation();
+        let want = NoiseModel { coefficients: phi.to_vec(), ..NoiseModel::default() }.lag1_autocorrelation();
         let mut got = 0.0;
         for _ in 0..50 {
             let x: Vec<f64> = (0..1500).map(|i| i as f64).collect();
@@ -825,7 +907,7 @@ mod tests {
 
     #[test]
     fn variance_inflation_of_ar1() {
-        let m = NoiseModel { coefficients: vec![0.8], sd_slope: 0.0 };
+        let m = NoiseModel { coefficients: vec![0.8], ..NoiseModel::default() };
         // (1 + phi) / (1 - phi) = 9.
         assert!((m.variance_inflation() - 9.0).abs() < 1e-6);
     }
@@ -853,6 +935,15 @@ mod tests {
                 let median = est[100];
                 assert!((median - phi).abs() < 0.015, "phi {phi}, block {block}: median estimate {median}");
             }
+        }
+    }
+
+    #[test]
+    fn normal_nodes_integrate_the_normal_moments() {
+        // E z^k for a standard normal: 1, 0, 1, 0, 3, 0, 15 (exact up to degree 9).
+        for (k, want) in [(0, 1.0), (1, 0.0), (2, 1.0), (3, 0.0), (4, 3.0), (6, 15.0), (8, 105.0)] {
+            let got: f64 = NORMAL_NODES.iter().map(|(z, w)| w * z.powi(k)).sum();
+            assert!((got - want).abs() < 1e-9, "moment {k}: {got}");
         }
     }
 }

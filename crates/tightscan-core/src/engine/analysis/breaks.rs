@@ -3,7 +3,7 @@
 //! quantisation from passing for a friction change.
 
 use crate::detectors::least_squares_line as line;
-use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_p_value, sup_lr_scan, tail_test};
+use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_predictive_p_value, sup_lr_scan, tail_test};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
 use crate::physics::torque_rate::encoder_resolution;
@@ -46,7 +46,13 @@ impl Detector {
         let (dx, dy) = (x[n - 1] - x[0], y[n - 1] - y[0]);
         let encoder_step = if dx > 0.0 { (dy / dx).abs() * resolution } else { 0.0 };
         let beyond_step = |jump: f64| encoder_step <= 0.0 || jump.abs() > breaks.min_jump_steps * encoder_step;
-        let scan_alarm = scan.statistic > critical_value && (beyond_step(scan_jump) || scan.statistic > 2.0 * critical_value);
+        // The whitening's own uncertainty: where the AR fit leaves the long-run variance
+        // uncertain, the scan is judged by its p-value averaged over it
+        // (`sup_lr_predictive_p_value`); for white noise by the table's critical value.
+        let se = s.noise.gain_log_se;
+        let p_value = sup_lr_predictive_p_value(nw, scan.statistic, se);
+        let significant = if se > 0.0 { p_value <= scan_alpha } else { scan.statistic > critical_value };
+        let scan_alarm = significant && (beyond_step(scan_jump) || scan.statistic > 2.0 * critical_value);
 
         // End test: every tail the scan cannot isolate (shorter than its minimum segment), up to
         // the peak (the samples past the window, which only this test uses).
@@ -80,7 +86,7 @@ impl Detector {
             alarm: scan_alarm || tail_alarm,
             statistic: scan.statistic,
             critical_value,
-            p_value: sup_lr_p_value(nw, scan.statistic),
+            p_value,
             tail_p_value: tail.map(|(t, ..)| t.p_value),
             change_index,
             change_angle: angle[change_index].to_f64(),

@@ -21,6 +21,44 @@ fn chi_square_quantile(k: f64, z: f64) -> f64 {
 /// thousand tightenings, so it barely moves the size.
 const Z_0999: f64 = 3.090_232_306;
 
+/// The factor by which the standardised block rates are widened for the whitening's own
+/// uncertainty. With the AR filter's log gain known to a standard error `gain_log_se`, the
+/// block rates' variance is `lambda` times the one assumed, `ln lambda ~ N(0, (2 se)^2)`. The
+/// CUSUM's false-alarm probability over `blocks` steps, `1 - exp(-blocks / ARL)` (Siegmund's ARL
+/// of the scheme on N(0, lambda / c^2) increments, i.e. with kappa and h scaled by c /
+/// sqrt(lambda)), averaged over lambda (5-point Gauss-Hermite), is a convex function of lambda's
+/// spread: the factor `c >= 1` brings that average back to the nominal probability (bisection).
+/// 1 for white noise.
+fn predictive_scale(h: f64, kappa: f64, blocks: usize, gain_log_se: f64) -> f64 {
+    use crate::detectors::cusum::cusum_arl;
+    use crate::detectors::noise::NORMAL_NODES;
+    if !(gain_log_se > 0.0) || blocks == 0 {
+        return 1.0;
+    }
+    let steps = blocks as f64;
+    let false_alarm = |scale: f64| 1.0 - (-steps / cusum_arl(h * scale, kappa * scale, 0.0, true)).exp();
+    let nominal = false_alarm(1.0);
+    let averaged = |c: f64| -> f64 {
+        NORMAL_NODES.iter().map(|(z, w)| w * false_alarm(c * (-gain_log_se * z).exp())).sum()
+    };
+    let (mut lo, mut hi) = (1.0_f64, (6.0 * gain_log_se).exp());
+    if averaged(lo) <= nominal {
+        return 1.0;
+    }
+    if averaged(hi) > nominal {
+        return hi;
+    }
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if averaged(mid) > nominal {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    hi
+}
+
 impl Detector {
     /// The CUSUM of the block torque rates over the window, or the status that says why the
     /// window is too short or too gappy for its blocks.
@@ -120,8 +158,9 @@ impl Detector {
         let dispersion = (sum_z2 / k).sqrt();
         let inflate = if sum_z2 > chi_square_quantile(k, Z_0999) { dispersion } else { 1.0 };
 
+        let predictive = predictive_scale(self.threshold, cfg.cusum.kappa, monitor.len(), s.noise.gain_log_se);
         s.z.clear();
-        s.z.extend(monitor.iter().map(|&b| z_of(b) / inflate));
+        s.z.extend(monitor.iter().map(|&b| z_of(b) / (inflate * predictive)));
         let mut cusum = TwoSidedCusum::new(cfg.cusum.kappa, self.threshold);
         for &z in &s.z {
             cusum.update(z);
@@ -142,7 +181,7 @@ impl Detector {
             max_statistic: cusum.max_statistic(),
             threshold: self.threshold,
             reference_rate,
-            noise_sd: noise_sd * inflate,
+            noise_sd: noise_sd * inflate * predictive,
             noise_df: df,
             dispersion,
             blocks: monitor.len(),

@@ -209,9 +209,11 @@ def diagnose(
             collinearity = coll
         alone: dict[str, _Fit] = {}
         tests_by_key: dict[str, tuple[float, dict[str, Any]]] = {}
+        alone_idx: dict[str, list[int]] = {}
         for term in cands_all:
-            fit, _ = evaluate_with(model, term)
+            fit, fit_idx = evaluate_with(model, term)
             alone[term.key] = fit
+            alone_idx[term.key] = fit_idx[term.key]
             # relative improvement per tightening, in [-1, 1]: it cannot exceed 1, and a
             # tightening that got more than twice as bad counts as -1 (no single curve decides)
             u = np.clip((current.mse_t - fit.mse_t) / np.maximum(current.mse_t, 1e-300), -1.0, 1.0)
@@ -278,13 +280,38 @@ def diagnose(
             if t.name != term.name and t not in close and abs(coll["correlation"].get(term.key, {}).get(t.key, 0.0) or 0.0) >= collinear
         ]
 
+        # a channel lag enters as its first-order form (-dT/dt) until its time constant is
+        # known; a few Gauss-Newton steps on the low-pass path first, so that the comparison is
+        # with the lag as it will be fitted, not with its linearisation (which a speed law in a
+        # mixed table can out-fit)
+        for lag_term in [t for t in [term, *close] if t.name == "channel_delay"]:
+            refined = lag_term
+            for _ in range(3):
+                hint = _hints({refined.key: refined}, alone[refined.key], {refined.key: alone_idx[refined.key]})
+                if "tau_s" not in hint:
+                    break
+                build += 1
+                fresh_all, _i = _candidates(s, eng, current, declared, build, [t.info["period_deg"] for t in model.values() if "period_deg" in t.info], hint)
+                fresh_lag = fresh_all.get(refined.key)
+                if fresh_lag is None:
+                    break
+                fit_lag, idx_lag = evaluate_with(model, fresh_lag)
+                if not fit_lag.rmse < alone[refined.key].rmse:
+                    break
+                refined = fresh_lag
+                alone[refined.key], alone_idx[refined.key] = fit_lag, idx_lag[refined.key]
+            if refined is not lag_term:
+                if term is lag_term:
+                    term = refined
+                close = [refined if t is lag_term else t for t in close]
+
         def joint_fit(a: _Term, b: _Term) -> _Fit:
             return evaluate_with(model, [a, b])[0]
 
         chosen, tied, identification = _identify(term, close, alone, joint_fit, alpha / m, min_gain, coll["correlation"], coll["vif"])
         if chosen is not term:
-            term, fit = chosen, alone[chosen.key]
             gain, tests = tests_by_key[chosen.key]
+        term, fit = chosen, alone[chosen.key]
         # nothing spurious (item 4): once an effect is in, a further term must keep its gain
         # when that effect's own law is given one more degree of freedom; structure that the
         # extension takes up is the misfit of a form (a second-order filter fitted as a

@@ -138,6 +138,7 @@ def _identify(
                 {
                     "term": current.name,
                     "competitor": c.name,
+                    "competitor_form": c.key,
                     "correlation": correlation.get(current.key, {}).get(c.key),
                     "vif_term": vif.get(current.key),
                     "vif_competitor": vif.get(c.key),

@@ -31,7 +31,7 @@ def _hidden(curves: pa.Table) -> pa.Table:
 
 def _claims(d: Diagnosis) -> list[list[str]]:
     """Level-1 claims in order, each as the list of effects it names (more than one: a tie)."""
-    return [e.names or [e.name] for e in d.effects if e.level == "within_tightening"]
+    return [getattr(e, "names", None) or [e.name] for e in d.effects if e.level == "within_tightening"]
 
 
 def _run(strategy: str, effect: Any, seed: int = 1, n: int = N) -> tuple[Diagnosis, pa.Table]:

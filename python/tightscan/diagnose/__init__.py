@@ -320,7 +320,7 @@ def diagnose(
         for ekey, held in model.items():
             if not held.extension:
                 continue
-            ext = _Term(held.name, held.description, False, [f"{held.name}: extension {i}" for i in range(len(held.extension))], held.extension, lambda f2, idx: {}, {}, f"{ekey}:extension", held.tag)
+            ext = _Term(held.name, held.description, False, [f"{held.name}: extension {i}" for i in range(len(held.extension))], held.extension, _no_parameters, {}, f"{ekey}:extension", held.tag)
             fit_ext = evaluate_with(model, ext)[0]
             keep = _gain_test(fit_ext, evaluate_with(model, [ext, term])[0], alpha / m, min_gain)
             if not keep["significant"]:
@@ -489,6 +489,10 @@ def diagnose(
         per_tightening=per_t,
         plot_data=plot,
     )
+
+
+def _no_parameters(fit: _Fit, idx: list[int]) -> dict[str, Any]:
+    return {}
 
 
 class _CallableModule(types.ModuleType):

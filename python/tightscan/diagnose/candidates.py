@@ -150,7 +150,7 @@ def _lowpass_filter_many(s: _Samples, cols: list[F64], tau: float) -> list[F64]:
     return [out[:, i].copy() for i in range(out.shape[1])]
 
 
-def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float) -> F64:
+def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float, decay: list[F64] | None = None) -> F64:
     """``(LP_tau[T_hat] - T_hat) / tau`` (about -dT_hat/dt) for the declared line refitted
     exactly under a low-pass of ``tau``: with the parts of :func:`_lowpass_parts`,
     y = a + b x + D (y_r - a - b x_r) + b R is linear in (a, b) given tau."""
@@ -171,6 +171,8 @@ def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float) -> F64
     a_t, b_t = coef[s.gid, 0, 0], coef[s.gid, 1, 0]
     dev = D * (y_r - a_t - b_t * (x_r - mean_x)) + b_t * R
     out: F64 = dev / tau
+    if decay is not None:
+        decay.append(D * el)
     return out
 
 
@@ -269,7 +271,8 @@ def _candidates(
         tau0 = hints.get("tau_s", 0.0)
         zd_ext: list[F64] = []
         if tau0 > 1e-5 and s.t is not None:
-            zd = _lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), tau0)
+            decay: list[F64] = []
+            zd = _lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), tau0, decay)
             form = f"low-pass path, refined at tau = {1000 * tau0:.3g} ms"
             # a second time constant: a second-order filter or a pure delay differs from the
             # first-order path in the curvature of the lag (the s^2 term), which this takes up
@@ -277,7 +280,15 @@ def _candidates(
             dt_ = np.r_[np.diff(s.t), 0.0]
             nxt = np.r_[(gid[1:] == gid[:-1]) & (s.seg[1:] == s.seg[:-1]), False] & el & (dt_ > 0)
             zd_dot = np.where(nxt, dz / np.where(dt_ > 0, dt_, 1.0), 0.0) * tau0
-            zd_ext = [_lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), 2.0 * tau0), zd_dot]
+            # ... and the transient from each anchor (the sample before the window, the end of a
+            # pause), whose state a higher-order channel holds in more than the one recorded value
+            restarted = np.cumsum(np.isfinite(s.restart_y) & el) - np.repeat(np.r_[0, np.cumsum(np.isfinite(s.restart_y) & el)][g.starts], np.diff(np.r_[g.starts, len(gid)])) > 0
+            zd_ext = [
+                _lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), 2.0 * tau0),
+                zd_dot,
+                decay[0] * s.scale[gid] * ~restarted,
+                decay[0] * s.scale[gid] * restarted,
+            ]
         else:
             zd = -dT_dtheta * s.omega
             form = "first order: -dT_hat/dt"

@@ -120,7 +120,7 @@ def _identifiable(effect: str, strategy: str) -> bool:
     return not (strategy == "CST" and effect in ("dynamics", "speed"))
 
 
-def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) -> list[Cell]:
+def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...], clamp: bool = True) -> list[Cell]:
     cells: list[Cell] = []
 
     def rec_tau(col: str, f: Callable[[pa.Table], np.ndarray] | None = None) -> Callable[[dict[str, Any], pa.Table], float | None]:
@@ -142,7 +142,7 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) 
         for st in strategies:
             for mag in magnitudes:
                 eff = ig.TorqueDynamics(form=form, **mags[mag])  # type: ignore[arg-type]
-                cells.append(Cell("independent", "dynamics", form, st, mag, "channel_delay", _ig_make(st, (eff,)), rec, _identifiable("dynamics", st)))
+                cells.append(Cell("independent", "dynamics", form, st, mag, "channel_delay", _ig_make(st, (eff,), clamp), rec, _identifiable("dynamics", st)))
 
     def rec_speed_log(p: dict[str, Any], t: pa.Table) -> float | None:
         return _ratio(_param(p, "a_eff"), _friction_share(t) * float(np.nanmean(_col(t, "speed_coeff"))))
@@ -152,7 +152,7 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) 
         for st in strategies:
             for mag in magnitudes:
                 eff = ig.SpeedFriction(form=form, coeff=speed_mags[mag])  # type: ignore[arg-type]
-                cells.append(Cell("independent", "speed", form, st, mag, "speed_dependent_friction", _ig_make(st, (eff,)), rec_speed_log if form == "log" else (lambda p, t: None), _identifiable("speed", st)))
+                cells.append(Cell("independent", "speed", form, st, mag, "speed_dependent_friction", _ig_make(st, (eff,), clamp), rec_speed_log if form == "log" else (lambda p, t: None), _identifiable("speed", st)))
 
     def rec_j(p: dict[str, Any], t: pa.Table) -> float | None:
         return _ratio(_param(p, "J_kg_m2"), float(np.nanmean(_col(t, "inertia_kgm2"))))
@@ -160,7 +160,7 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) 
     for st in strategies:
         for mag in magnitudes:
             eff_i = ig.Inertia(form="transducer", inertia_kgm2=(5e-5, 1e-4) if mag == "small" else (2e-4, 4e-4))
-            cells.append(Cell("independent", "inertia", "transducer", st, mag, "inertia", _ig_make(st, (eff_i,)), rec_j))
+            cells.append(Cell("independent", "inertia", "transducer", st, mag, "inertia", _ig_make(st, (eff_i,), clamp), rec_j))
 
     def rec_pressure(p: dict[str, Any], t: pa.Table) -> float | None:
         k = float(np.nanmean(_col(t, "kappa")))
@@ -171,7 +171,9 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) 
         for st in strategies:
             for mag in magnitudes:
                 eff_p = ig.PressureFriction(form=form, **mags_p[mag])  # type: ignore[arg-type]
-                cells.append(Cell("independent", "pressure", form, st, mag, "pressure_dependent_friction", _ig_make(st, (eff_p,)), rec_pressure if form == "linear" else (lambda p, t: None)))
+                # without the clamp-force channel the bend is named elastic_curvature
+                expected = "pressure_dependent_friction" if clamp else "elastic_curvature"
+                cells.append(Cell("independent", "pressure", form, st, mag, expected, _ig_make(st, (eff_p,), clamp), rec_pressure if form == "linear" and clamp else (lambda p, t: None)))
 
     def rec_ripple(p: dict[str, Any], t: pa.Table) -> float | None:
         amp = _col(t, "ripple_amplitude_nm") / _col(t, "target_torque")
@@ -181,7 +183,7 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) 
         for st in strategies:
             for mag in magnitudes:
                 eff_r = ig.TorqueRipple(orders=(order,), amplitude_fraction=(0.005, 0.01) if mag == "small" else (0.02, 0.03))
-                cells.append(Cell("independent", "ripple", f"order{order}", st, mag, name, _ig_make(st, (eff_r,)), rec_ripple))
+                cells.append(Cell("independent", "ripple", f"order{order}", st, mag, name, _ig_make(st, (eff_r,), clamp), rec_ripple))
     return cells
 
 
@@ -207,8 +209,8 @@ def simulator_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) ->
     return cells
 
 
-def clean_cells(strategies: tuple[str, ...], with_sim: bool) -> list[Cell]:
-    cells = [Cell("independent", "clean", "-", st, "-", None, _ig_make(st, ())) for st in strategies]
+def clean_cells(strategies: tuple[str, ...], with_sim: bool, clamp: bool = True) -> list[Cell]:
+    cells = [Cell("independent", "clean", "-", st, "-", None, _ig_make(st, (), clamp)) for st in strategies]
     if with_sim:
         cells += [Cell("simulate", "clean", "-", st, "-", None, _sim_make(st, with_clamp_force=True)) for st in strategies]
     return cells
@@ -247,11 +249,11 @@ def classify(cl: list[tuple[tuple[str, ...], bool]], expected: str | None) -> tu
     return "wrong", extra
 
 
-def run_cell(cell: Cell, n: int, seeds: list[int], verbose: bool) -> None:
+def run_cell(cell: Cell, n: int, seeds: list[int], verbose: bool, alpha: float = 0.01) -> None:
     t0 = time.perf_counter()
     for seed in seeds:
         curves, truth = cell.make(n, seed)
-        d = tightscan.diagnose(_hidden(curves))
+        d = tightscan.diagnose(_hidden(curves), alpha=alpha)
         cl = claims(d)
         outcome, extra = classify(cl, cell.expected)
         cell.outcomes.append(outcome)
@@ -326,6 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--strategies", default=",".join(STRATEGIES))
     ap.add_argument("--magnitudes", default="small,large")
     ap.add_argument("--clean-seeds", type=int, default=None, help="clean sets per strategy (default --seeds)")
+    ap.add_argument("--alpha", type=float, default=0.01, help="diagnose's family-wise level per round (its default 0.01)")
+    ap.add_argument("--no-clamp", action="store_true", help="independent generator without the clamp-force channel (pressure friction is then expected as elastic_curvature)")
     ap.add_argument("-v", "--verbose", action="store_true")
     a = ap.parse_args(argv)
     n = a.n or (150 if a.quick else 300)
@@ -340,17 +344,17 @@ def main(argv: list[str] | None = None) -> int:
     sets = set(a.sets.split(","))
     cells: list[Cell] = []
     if "independent" in sets:
-        cells += [c for c in independent_cells(strategies, magnitudes) if c.effect in effects]
+        cells += [c for c in independent_cells(strategies, magnitudes, not a.no_clamp) if c.effect in effects]
     if "simulate" in sets:
         cells += [c for c in simulator_cells(strategies, magnitudes) if c.effect in effects]
     if "clean" in sets:
-        cells += clean_cells(strategies, "simulate" in sets)
+        cells += clean_cells(strategies, "simulate" in sets, not a.no_clamp)
     t0 = time.perf_counter()
     seeds = list(range(a.seed, a.seed + a.seeds))
     clean_seeds = list(range(a.seed, a.seed + (a.clean_seeds or a.seeds)))
     for c in cells:
-        run_cell(c, n, clean_seeds if c.expected is None else seeds, a.verbose)
-    print(f"# diagnose confusion matrix: {n} tightenings per set, seeds {seeds[0]}..{seeds[-1]} (clean {clean_seeds[0]}..{clean_seeds[-1]}), {time.perf_counter() - t0:.0f} s\n")
+        run_cell(c, n, clean_seeds if c.expected is None else seeds, a.verbose, a.alpha)
+    print(f"# diagnose confusion matrix: {n} tightenings per set, seeds {seeds[0]}..{seeds[-1]} (clean {clean_seeds[0]}..{clean_seeds[-1]}), clamp force {'off' if a.no_clamp else 'on'} (independent generator), alpha {a.alpha:g}, {time.perf_counter() - t0:.0f} s\n")
     print(markdown(cells))
     print()
     print(summary(cells))

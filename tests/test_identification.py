@@ -119,3 +119,20 @@ def test_a_tie_names_both_and_neither_alone() -> None:
 def test_clean_sets_claim_nothing(strategy: str, seed: int) -> None:
     d, _ = _run(strategy, None, seed=seed, n=120)
     assert _claims(d) == []
+
+
+@pytest.mark.parametrize(
+    "effect",
+    [ig.TorqueDynamics(form="lowpass2", natural_freq_hz=(60.0, 120.0), damping=0.7), ig.TorqueDynamics(form="delay", delay_s=(0.002, 0.004))],
+    ids=["lowpass2", "delay"],
+)
+def test_nothing_claimed_after_the_lag_for_the_misfit_of_its_form(effect: Any) -> None:
+    """A second-order filter or a pure delay fitted as a first-order lag leaves structure that a
+    speed law takes up (before item 4: speed friction, then time drift, named after the lag).
+    With the lag's law extended by one degree of freedom that structure is gone: nothing more
+    is claimed, and the report says which candidate only took up the misfit of which effect."""
+    d, _ = _run("HDT", effect)
+    assert _claims(d) == [["channel_delay"]]
+    misfit = d.details["form_misfit"]
+    assert misfit and misfit[0]["effect"] == "channel_delay"
+    assert not misfit[0]["candidate_gain_with_extension_in"]["significant"]

@@ -50,6 +50,7 @@ from ..exceptions import InvalidParameterError
 from .prepare import _as_table, _prepare, F64
 from .fit import _Engine, _Fit, _folds, _one_sided_tests, _Term
 from .candidates import _candidates
+from .identify import _collinearity, _gain_test, _identify
 from .spectrum import _whiteness
 from .select import _grouped_median, _hints, _level2, _model_string, _partial_corr, _partial_residual, _quantiles
 from .prepare import load_table
@@ -75,6 +76,8 @@ def diagnose(
     parsimony: float = 0.8,
     periodic_span_deg: float = 720.0,
     seed: int = 0,
+    reach: float = 0.3,
+    collinear: float = 0.5,
 ) -> Diagnosis:
     """Diagnose what the declared tightening model misses, out of sample.
 
@@ -101,6 +104,16 @@ def diagnose(
     only if the global one's gain is below this fraction of its gain. ``min_samples``: fewest
     samples of a tightening's elastic window (and rundown stretch) to use it. ``seed``: of the
     fold assignment.
+
+    Identification (``details["collinearity"]``, ``details["ties"]``, each effect's
+    ``evidence["identification"]``): before a selected term is named, it is fitted jointly with
+    every close competitor -- a significant candidate whose gain was at least ``reach`` times its
+    gain, or one whose regressor correlates with it by ``collinear`` or more once each
+    tightening's own columns are projected out -- and both are compared out of sample with the
+    other left out. It is named alone only if it keeps a significant gain with the competitor in
+    and the competitor loses its gain with it in; a competitor that does the reverse is named
+    instead; where neither keeps a gain, the effect is a tie (``Effect.names``) and no member
+    is named alone.
     """
     started = time.perf_counter()
     if folds < 2:
@@ -139,10 +152,10 @@ def diagnose(
                 zc = zc + t.columns
         return pc, pk, zn, zc, idx
 
-    def evaluate_with(model: dict[str, _Term], extra: _Term | None) -> tuple[_Fit, dict[str, list[int]]]:
+    def evaluate_with(model: dict[str, _Term], extra: _Term | Sequence[_Term] | None) -> tuple[_Fit, dict[str, list[int]]]:
         both = dict(model)
-        if extra is not None:
-            both[extra.key] = extra
+        for t in [] if extra is None else [extra] if isinstance(extra, _Term) else extra:
+            both[t.key] = t
         pc, pk, zn, zc, idx = assemble(both)
         return eng.evaluate(pk, pc, zn, zc), idx
 
@@ -167,6 +180,11 @@ def diagnose(
     rounds: list[dict[str, Any]] = []
     leftover_significant = False
     periodogram_info: dict[str, Any] = {}
+    collinearity: dict[str, Any] = {}
+    ties: list[dict[str, Any]] = []
+    tied_out: set[str] = set()  # effects reported in a tie: not offered again
+    misfits: list[dict[str, Any]] = []
+    misfit_out: set[str] = set()  # candidates that only took up the form misfit of an effect in
     partial: dict[str, Any] = {}
     build = 0
     for round_no in range(max_effects + 1):
@@ -177,12 +195,25 @@ def diagnose(
             periodogram_info = pinfo
         pc, pk, zn, zc, _ = assemble(model)
         eng.keep_only(pk, zn)
-        cands_all = [t for key, t in terms.items() if key not in model]
+        # a further form of an effect already in the model is not a new effect (periodic
+        # disturbances at other periods are)
+        in_model = {t.name for t in model.values() if t.name != "periodic_disturbance"}
+        cands_all = [t for key, t in terms.items() if key not in model and t.name not in tied_out | misfit_out and t.name not in in_model]
         tried: list[dict[str, Any]] = []
         significant_terms: list[tuple[float, _Term, _Fit, dict[str, Any]]] = []
         m = max(len(cands_all), 1)
+        # how collinear the candidates are in this round's data, each tightening's own columns
+        # (and the per-tightening columns of the model) projected out as the fit does
+        coll = _collinearity(eng, pk, pc, cands_all)
+        if round_no == 0:
+            collinearity = coll
+        alone: dict[str, _Fit] = {}
+        tests_by_key: dict[str, tuple[float, dict[str, Any]]] = {}
+        alone_idx: dict[str, list[int]] = {}
         for term in cands_all:
-            fit, _ = evaluate_with(model, term)
+            fit, fit_idx = evaluate_with(model, term)
+            alone[term.key] = fit
+            alone_idx[term.key] = fit_idx[term.key]
             # relative improvement per tightening, in [-1, 1]: it cannot exceed 1, and a
             # tightening that got more than twice as bad counts as -1 (no single curve decides)
             u = np.clip((current.mse_t - fit.mse_t) / np.maximum(current.mse_t, 1e-300), -1.0, 1.0)
@@ -207,9 +238,17 @@ def diagnose(
                     "significant": significant,
                 }
             )
+            tests_by_key[term.key] = (max(gain, median_gain), tests | {"bonferroni_alpha": alpha / m, "candidates_in_round": m, "median_gain": median_gain})
             if significant:
-                significant_terms.append((max(gain, median_gain), term, fit, tests | {"bonferroni_alpha": alpha / m, "candidates_in_round": m, "median_gain": median_gain}))
-        rounds.append({"round": round_no + 1, "rmse": current.rmse, "candidates": sorted(tried, key=lambda r: -r["rmse_gain"])})
+                significant_terms.append((max(gain, median_gain), term, fit, tests_by_key[term.key][1]))
+        rounds.append(
+            {
+                "round": round_no + 1,
+                "rmse": current.rmse,
+                "candidates": sorted(tried, key=lambda r: -r["rmse_gain"]),
+                "collinearity": {k: coll[k] for k in ("condition_number", "vif")},
+            }
+        )
         if effects:
             by_name = {r["name"]: r["rmse_gain"] for r in tried}
             for alt in effects[-1].evidence.get("alternatives", []):
@@ -230,6 +269,74 @@ def diagnose(
                 parsimony_note = f"preferred to {best[1].name} (gain {best[0]:.4f}, per-tightening coefficients) by the parsimony rule"
                 best = glob_terms[0]
         gain, term, fit, tests = best
+        # identification: the close competitors of the selected term -- those whose own gain was
+        # within reach of its gain, or whose regressor is strongly collinear with it -- each
+        # fitted jointly with it and compared out of sample with either one left out
+        # (other forms of the same effect are not competitors: the better-fitting form is in)
+        close = [r[1] for r in significant_terms if r[1].name != term.name and r[0] >= reach * gain]
+        close += [
+            t
+            for t in cands_all
+            if t.name != term.name and t not in close and abs(coll["correlation"].get(term.key, {}).get(t.key, 0.0) or 0.0) >= collinear
+        ]
+
+        # a channel lag enters as its first-order form (-dT/dt) until its time constant is
+        # known; a few Gauss-Newton steps on the low-pass path first, so that the comparison is
+        # with the lag as it will be fitted, not with its linearisation (which a speed law in a
+        # mixed table can out-fit)
+        for lag_term in [t for t in [term, *close] if t.name == "channel_delay"]:
+            refined = lag_term
+            for _ in range(3):
+                hint = _hints({refined.key: refined}, alone[refined.key], {refined.key: alone_idx[refined.key]})
+                if "tau_s" not in hint:
+                    break
+                build += 1
+                fresh_all, _i = _candidates(s, eng, current, declared, build, [t.info["period_deg"] for t in model.values() if "period_deg" in t.info], hint)
+                fresh_lag = fresh_all.get(refined.key)
+                if fresh_lag is None:
+                    break
+                fit_lag, idx_lag = evaluate_with(model, fresh_lag)
+                if not fit_lag.rmse < alone[refined.key].rmse:
+                    break
+                refined = fresh_lag
+                alone[refined.key], alone_idx[refined.key] = fit_lag, idx_lag[refined.key]
+            if refined is not lag_term:
+                if term is lag_term:
+                    term = refined
+                close = [refined if t is lag_term else t for t in close]
+
+        def joint_fit(a: _Term, b: _Term) -> _Fit:
+            return evaluate_with(model, [a, b])[0]
+
+        chosen, tied, identification = _identify(term, close, alone, joint_fit, alpha / m, min_gain, coll["correlation"], coll["vif"])
+        if chosen is not term:
+            gain, tests = tests_by_key[chosen.key]
+        term, fit = chosen, alone[chosen.key]
+        # nothing spurious (item 4): once an effect is in, a further term must keep its gain
+        # when that effect's own law is given one more degree of freedom; structure that the
+        # extension takes up is the misfit of a form (a second-order filter fitted as a
+        # first-order one), which a confounded proxy would otherwise be named for
+        misfit = None
+        for ekey, held in model.items():
+            if not held.extension:
+                continue
+            ext = _Term(held.name, held.description, False, [f"{held.name}: extension {i}" for i in range(len(held.extension))], held.extension, _no_parameters, {}, f"{ekey}:extension", held.tag)
+            fit_ext = evaluate_with(model, ext)[0]
+            keep = _gain_test(fit_ext, evaluate_with(model, [ext, term])[0], alpha / m, min_gain)
+            if not keep["significant"]:
+                misfit = {
+                    "candidate": term.name,
+                    "effect": held.name,
+                    "extension_gain": _gain_test(current, fit_ext, alpha / m, min_gain),
+                    "candidate_gain_with_extension_in": keep,
+                    "round": round_no + 1,
+                }
+                break
+        if misfit is not None:
+            misfits.append(misfit)
+            misfit_out.add(term.name)
+            continue
+        tied_out |= {t.name for t in tied}
         pc_prev, pk_prev = pc, pk
         corr_before = _partial_corr(eng, current, term, pk_prev, pc_prev)
         model[term.key] = term
@@ -270,21 +377,32 @@ def diagnose(
         } | {k: v for k, v in term.info.items()}
         if parsimony_note:
             evidence["parsimony"] = parsimony_note
+        evidence["identification"] = identification
+        if chosen is not best[1]:
+            evidence["identification_note"] = f"{best[1].name} fitted best alone, but {chosen.name} encompasses it"
         # other candidates that explained much of the same residual: what the data cannot tell
         # apart from the winner (their gain after it was added is filled in next round)
         evidence["alternatives"] = [
             {"name": r[1].name, "rmse_gain": r[0]} for r in significant_terms if r[1] is not term and r[0] >= 0.3 * gain
         ]
         partial[term.name] = _partial_residual(eng, s, model[term.key], fit, current_idx[term.key], pc_prev, current.resid)
+        names = [term.name] + [t.name for t in tied]
+        if tied:
+            # the data cannot tell them apart: named together, never one of them alone. The
+            # model carries the best-fitting member (its parameters are reported as such)
+            tie_evidence = [e for e in identification if e["verdict"] == "tie"]
+            ties.append({"names": names, "fitted_as": term.name, "evidence": tie_evidence})
+            evidence["tie"] = {"names": names, "fitted_as": term.name}
         effects.append(
             Effect(
-                name=term.name,
-                description=term.description,
+                name=" or ".join(names),
+                description=term.description if not tied else "the data cannot tell these effects apart: " + "; ".join(f"{t.name}: {t.description}" for t in [term, *tied]),
                 level="within_tightening",
                 significant=True,
                 parameters={},
                 rmse_after=fit.rmse,
                 evidence=evidence,
+                names=names,
             )
         )
         current = fit
@@ -336,6 +454,9 @@ def diagnose(
         },
         "noise_floor_estimate": float(np.sqrt(np.sum(g.count * sig_t**2) / np.sum(g.count))),
         "whiteness": white,
+        "collinearity": collinearity,
+        "ties": ties,
+        "form_misfit": misfits,
         "periodogram": periodogram_info,
         "rounds": rounds,
         "level2": l2_details,
@@ -368,6 +489,10 @@ def diagnose(
         per_tightening=per_t,
         plot_data=plot,
     )
+
+
+def _no_parameters(fit: _Fit, idx: list[int]) -> dict[str, Any]:
+    return {}
 
 
 class _CallableModule(types.ModuleType):

@@ -150,7 +150,7 @@ def _lowpass_filter_many(s: _Samples, cols: list[F64], tau: float) -> list[F64]:
     return [out[:, i].copy() for i in range(out.shape[1])]
 
 
-def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float) -> F64:
+def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float, decay: list[F64] | None = None) -> F64:
     """``(LP_tau[T_hat] - T_hat) / tau`` (about -dT_hat/dt) for the declared line refitted
     exactly under a low-pass of ``tau``: with the parts of :func:`_lowpass_parts`,
     y = a + b x + D (y_r - a - b x_r) + b R is linear in (a, b) given tau."""
@@ -171,6 +171,8 @@ def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float) -> F64
     a_t, b_t = coef[s.gid, 0, 0], coef[s.gid, 1, 0]
     dev = D * (y_r - a_t - b_t * (x_r - mean_x)) + b_t * R
     out: F64 = dev / tau
+    if decay is not None:
+        decay.append(D * el)
     return out
 
 
@@ -204,12 +206,14 @@ def _candidates(
     tp = np.where(np.isfinite(tp), tp, 0.0)
     cands: dict[str, _Term] = {}
 
-    def glob(name: str, cols: list[F64], labels: list[str], params: Callable[[_Fit, list[int]], dict[str, Any]], info: dict[str, Any] | None = None, description: str | None = None) -> None:
+    def glob(name: str, cols: list[F64], labels: list[str], params: Callable[[_Fit, list[int]], dict[str, Any]], info: dict[str, Any] | None = None, description: str | None = None, key: str | None = None, extension: list[F64] | None = None) -> None:
         cols = [np.where(np.isfinite(c), c, 0.0) for c in cols]
         if not any(np.any(c != 0) for c in cols):
             return
         info = dict(info or {})
-        cands[name] = _Term(name, description or EFFECT_NAMES[name], False, labels, cols, params, info, name, tag)
+        key = key or name
+        ext = [np.where(np.isfinite(c), c, 0.0) for c in extension or []]
+        cands[key] = _Term(name, description or EFFECT_NAMES[name], False, labels, cols, params, info, key, tag, ext)
 
     def pv(fit2: _Fit, idx: list[int], scale: float = 1.0) -> dict[str, float]:
         return {"value": float(fit2.beta[idx[0]] * scale), "se": float(fit2.se[idx[0]] * abs(scale))}
@@ -231,7 +235,30 @@ def _candidates(
             }
 
         if spread > 0.01:
-            glob("speed_dependent_friction", [fr * lnv], ["a_eff"], p_speed, {"speed_source": s.speed_source, "ln_speed_sd_in_window": spread})
+            glob("speed_dependent_friction", [fr * lnv], ["a_eff"], p_speed, {"speed_source": s.speed_source, "ln_speed_sd_in_window": spread, "law": "log"}, extension=[fr * (om / ref - 1.0)])
+
+            # the same effect with friction linear in the speed (viscous): under a hold-down
+            # program the speed falls in proportion to the remaining torque, so a linear law
+            # bends the torque-force line exactly as pressure friction does except where the
+            # speed stops following the force (the knee, the speed floor, a pause): only the
+            # law that follows the speed there can win that comparison
+            def p_speed_linear(f2: _Fit, idx: list[int]) -> dict[str, Any]:
+                return {
+                    "b_eff": pv(f2, idx),
+                    "reference_speed_rpm": ref / 6.0,
+                    "law": "T - T_prevailing = (T0 - T_prevailing) (1 + b_eff (v / v_ref - 1))",
+                    "note": "b_eff = b * (friction share of the torque per clamp force): the lead term 0.16 P does not depend on speed",
+                }
+
+            glob(
+                "speed_dependent_friction",
+                [fr * (om / ref - 1.0)],
+                ["b_eff"],
+                p_speed_linear,
+                {"speed_source": s.speed_source, "ln_speed_sd_in_window": spread, "law": "linear"},
+                key="speed_dependent_friction:linear",
+                extension=[fr * lnv],
+            )
         lnr = lnv * rdf
         if float(np.std(lnv[rd])) > 0.01 if np.any(rd) else False:
 
@@ -242,9 +269,26 @@ def _candidates(
         # channel delay: recorded T(t - tau) = T - tau dT/dt (first order); once tau is known
         # roughly, the fitted torque path through a first-order low-pass with that tau
         tau0 = hints.get("tau_s", 0.0)
+        zd_ext: list[F64] = []
         if tau0 > 1e-5 and s.t is not None:
-            zd = _lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), tau0)
+            decay: list[F64] = []
+            zd = _lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), tau0, decay)
             form = f"low-pass path, refined at tau = {1000 * tau0:.3g} ms"
+            # a second time constant: a second-order filter or a pure delay differs from the
+            # first-order path in the curvature of the lag (the s^2 term), which this takes up
+            dz = np.r_[np.diff(zd), 0.0]
+            dt_ = np.r_[np.diff(s.t), 0.0]
+            nxt = np.r_[(gid[1:] == gid[:-1]) & (s.seg[1:] == s.seg[:-1]), False] & el & (dt_ > 0)
+            zd_dot = np.where(nxt, dz / np.where(dt_ > 0, dt_, 1.0), 0.0) * tau0
+            # ... and the transient from each anchor (the sample before the window, the end of a
+            # pause), whose state a higher-order channel holds in more than the one recorded value
+            restarted = np.cumsum(np.isfinite(s.restart_y) & el) - np.repeat(np.r_[0, np.cumsum(np.isfinite(s.restart_y) & el)][g.starts], np.diff(np.r_[g.starts, len(gid)])) > 0
+            zd_ext = [
+                _lowpass_regressor(s, g, k_t if s.has_clamp else np.ones(s.n_tight), 2.0 * tau0),
+                zd_dot,
+                decay[0] * s.scale[gid] * ~restarted,
+                decay[0] * s.scale[gid] * restarted,
+            ]
         else:
             zd = -dT_dtheta * s.omega
             form = "first order: -dT_hat/dt"
@@ -253,7 +297,7 @@ def _candidates(
             return {"tau_ms": pv(f2, idx, 1000.0)}
 
         lag = _lag_xcorr(s, fit.resid, th, el)
-        glob("channel_delay", [zd], ["tau"], p_delay, {"cross_correlation_lag": lag, "regressor": form})
+        glob("channel_delay", [zd], ["tau"], p_delay, {"cross_correlation_lag": lag, "regressor": form}, extension=zd_ext)
     if s.alpha is not None:
 
         def p_inertia(f2: _Fit, idx: list[int]) -> dict[str, Any]:
@@ -304,14 +348,14 @@ def _candidates(
             out["note"] = "c_eff = c * (friction share of the torque per clamp force, about 0.85-0.9 for ISO metric threads)"
         return out
 
-    glob(name_q, [zq], ["kappa"], p_curv)
+    glob(name_q, [zq], ["kappa"], p_curv, extension=[zq * np.nan_to_num(w)])
     # time within the tightening (additive drift, relative to the tightening's peak torque)
     if s.t is not None:
 
         def p_time(f2: _Fit, idx: list[int]) -> dict[str, Any]:
             return {"drift_per_s_relative": pv(f2, idx)}
 
-        glob("time_drift", [s.scale[gid] * s.t], ["drift"], p_time)
+        glob("time_drift", [s.scale[gid] * s.t], ["drift"], p_time, extension=[s.scale[gid] * s.t * s.t])
     # program steps: per step of the tool program (those seen in the elastic window of at least
     # 5 % of the tightenings), an offset, a change of the torque rate from the step's start and
     # a short transient after it (global coefficients, relative to the tightening's scale)

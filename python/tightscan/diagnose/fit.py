@@ -192,6 +192,10 @@ class _Term:
     info: dict[str, Any] = field(default_factory=dict)
     key: str = ""
     tag: int = 0
+    #: regressors that extend the effect's own law by one degree of freedom (a second time
+    #: constant, the other speed law, a cubic bend): structure left after the effect is in that
+    #: such an extension takes up is a misfit of its form, not a further effect
+    extension: list[F64] = field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------------------------

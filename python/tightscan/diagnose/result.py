@@ -46,6 +46,9 @@ class Effect:
     rmse_after: float
     evidence: dict[str, Any]
     rmse_unit: str = "Nm"
+    #: the effects this claim names: one, or several the data cannot tell apart (a tie; then
+    #: ``name`` joins them with " or " and none of them is named alone)
+    names: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -57,6 +60,7 @@ class Effect:
             "rmse_after": self.rmse_after,
             "rmse_unit": self.rmse_unit,
             "evidence": self.evidence,
+            "names": self.names or [self.name],
         }
 
 

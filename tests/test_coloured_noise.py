@@ -45,8 +45,9 @@ def test_size_under_moderately_coloured_noise_is_nominal() -> None:
     # AR(1) with phi = 0.5; before pre-whitening the default rule alarmed on 33 % of these.
     # Binomial sd at 1 % over 1,500 curves is 0.26 points: a nominal rule falls below 0.5 % here
     # with probability 3 %, so the lower edge is 0.4 % (2.3 sd); the cell goal [0.5, 1.5] x
-    # alpha is for 4,000 curves. Measured 0.47 % (the tests' averaging over the AR fit's
-    # uncertainty makes them a little conservative where phi is well determined).
+    # alpha is for 4,000 curves. Measured 0.40 % here and 0.50 % over 4,000 curves (seed 171):
+    # the tests' averaging over the AR fit's uncertainty makes them a little conservative
+    # where phi is well determined.
     results = tightscan.detect_batch(_with_ar1_noise(0.5, seed=71))
     assert 0.004 <= _false_alarm_rate(results) <= 0.015
     lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
@@ -132,7 +133,11 @@ def test_size_and_power_at_phi_0_9_on_the_independent_generator() -> None:
 
     noise = ig.NoiseConfig(colour="ar1", phi=0.9)
     clean, _ = ig.generate(ig.GeneratorConfig(n=N_CURVES, seed=76, strategy="CST", encoder_step_deg=0.1, noise=noise))
-    assert _false_alarm_rate(tightscan.detect_batch(clean)) <= 0.03
+    # The AR order the fit needs at phi 0.9 is higher, and with it the fewest samples a window
+    # needs: 2 % of these curves get too_short (1,469 of 1,500 decided).
+    decided = [v for v in tightscan.detect_batch(clean)["change_detected"].to_pylist() if v is not None]
+    assert len(decided) >= 0.95 * N_CURVES
+    assert float(np.mean(decided)) <= 0.03
     fault = ig.FaultConfig(kind="abrupt", magnitude=(0.15, 0.45), fraction_faulty=1.0)
     noise85 = ig.NoiseConfig(colour="ar1", phi=0.85)
     faulty, _ = ig.generate(

@@ -122,7 +122,9 @@ def test_power_onset_and_the_baseline() -> None:
     detected = _flag(results, "change_detected")
     magnitude = np.abs(np.asarray(truth.column("magnitude").to_numpy(zero_copy_only=False), dtype=float))
     # Measured at this seed: 0.998 below 15 %, 0.9995 from 15 % (0.984 before the end test);
-    # the goals of issue 4 are 0.88 and 0.99.
+    # 0.988 / 0.994 after pre-whitening; 0.977 / 0.992 once the tests averaged over the AR
+    # fit's uncertainty (faulty curves whose window gets an AR model pay for its error).
+    # The goals of issue 4 are 0.88 and 0.99.
     assert detected[magnitude < 0.15].mean() > 0.97
     assert detected[magnitude >= 0.15].mean() > 0.99
     kind = np.array(truth.column("fault_kind").to_pylist())

@@ -602,6 +602,154 @@ fn solve_moments(observed: &[f64], start: &(Vec<f64>, f64), weights: &[Vec<f64>]
     model(&theta)
 }
 
+/// Degrees of freedom tried by [`fit_student_t`]: 3 (variance barely finite) to 60 (a normal).
+pub const STUDENT_T_DEGREES: [f64; 14] = [
+    3.0, 3.5, 4.0, 4.5, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0, 15.0, 20.0, 30.0, 60.0,
+];
+
+/// A Student t fitted to residuals by maximum likelihood.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StudentFit {
+    /// Degrees of freedom (one of [`STUDENT_T_DEGREES`]).
+    pub nu: f64,
+    /// Scale of the t, one per group of residuals ([`fit_student_t_groups`]).
+    pub scales: Vec<f64>,
+    /// Likelihood-ratio statistic of the t against the normal, `2 (ln L_t - ln L_normal)`.
+    pub lr: f64,
+}
+
+/// Maximum-likelihood Student t (centre 0: the residuals of a fitted line) over the grid
+/// [`STUDENT_T_DEGREES`], the scale for each by the EM iteration of Lange, Little and Taylor
+/// (1989, JASA 84, "Robust statistical modeling using the t distribution", eq. 5: weights
+/// `(nu + 1) / (nu + r^2 / s^2)`), and its likelihood ratio against the normal. The moment
+/// estimate `nu = 4 + 6 / g2` this replaces is biased high for heavy tails (from 300 t4
+/// residuals, median 5.8 against 4.3 here), because a sample's kurtosis is finite where the
+/// t's is not; too light a t left a t4 window's spikes too extreme after the normal-score
+/// transform. `None` for fewer than 5 residuals or all zero.
+pub fn fit_student_t(residuals: &[f64]) -> Option<StudentFit> {
+    fit_student_t_groups(&[residuals])
+}
+
+/// [`fit_student_t`] over groups of residuals that share the degrees of freedom but each have
+/// their own scale (a rundown's noise and a window's, on different scales), against normals
+/// with a variance per group. Pooling groups on one scale would make a scale mixture, which
+/// has heavy tails of its own. Groups of fewer than 2 residuals or all zero are left out.
+pub fn fit_student_t_groups(groups: &[&[f64]]) -> Option<StudentFit> {
+    let used: Vec<&[f64]> = groups
+        .iter()
+        .copied()
+        .filter(|g| g.len() >= 2 && g.iter().any(|r| *r != 0.0))
+        .collect();
+    let n: usize = used.iter().map(|g| g.len()).sum();
+    if n < 5 {
+        return None;
+    }
+    let mut ll_normal = 0.0;
+    for g in &used {
+        let var = g.iter().map(|r| r * r).sum::<f64>() / g.len() as f64;
+        if !var.is_finite() {
+            return None;
+        }
+        ll_normal += -0.5 * g.len() as f64 * ((2.0 * std::f64::consts::PI * var).ln() + 1.0);
+    }
+    let mut best: Option<(f64, f64, Vec<f64>)> = None; // (log-likelihood, nu, scales)
+    'grid: for &nu in &STUDENT_T_DEGREES {
+        let mut ll = 0.0;
+        let mut scales = Vec::with_capacity(groups.len());
+        for g in groups {
+            if !used.iter().any(|u| std::ptr::eq(*u, *g)) {
+                scales.push(f64::NAN);
+                continue;
+            }
+            let Some((scale, l)) = student_t_scale(g, nu) else {
+                continue 'grid;
+            };
+            ll += l;
+            scales.push(scale);
+        }
+        if best.as_ref().is_none_or(|(b, ..)| ll > *b) {
+            best = Some((ll, nu, scales));
+        }
+    }
+    best.map(|(ll, nu, scales)| StudentFit {
+        nu,
+        scales,
+        lr: (2.0 * (ll - ll_normal)).max(0.0),
+    })
+}
+
+/// Maximum-likelihood scale of a centred Student t with `nu` degrees of freedom (the EM
+/// iteration of [`fit_student_t`]) and the log-likelihood there; `None` when the residuals are
+/// all zero or fewer than two.
+pub fn student_t_scale(residuals: &[f64], nu: f64) -> Option<(f64, f64)> {
+    use statrs::function::gamma::ln_gamma;
+    let nf = residuals.len() as f64;
+    if residuals.len() < 2 || !(nu > 2.0) {
+        return None;
+    }
+    let var = residuals.iter().map(|r| r * r).sum::<f64>() / nf;
+    let mut s2 = var * (nu - 2.0) / nu;
+    if !(s2 > 0.0 && s2.is_finite()) {
+        return None;
+    }
+    for _ in 0..30 {
+        let next = residuals
+            .iter()
+            .map(|r| r * r * (nu + 1.0) / (nu + r * r / s2))
+            .sum::<f64>()
+            / nf;
+        let done = ((next - s2) / s2).abs() < 1e-6;
+        s2 = next;
+        if done || !(s2 > 0.0) {
+            break;
+        }
+    }
+    if !(s2 > 0.0) {
+        return None;
+    }
+    let constant = ln_gamma(0.5 * (nu + 1.0))
+        - ln_gamma(0.5 * nu)
+        - 0.5 * (nu * std::f64::consts::PI * s2).ln();
+    let ll = nf * constant
+        - 0.5
+            * (nu + 1.0)
+            * residuals
+                .iter()
+                .map(|r| (r * r / (nu * s2)).ln_1p())
+                .sum::<f64>();
+    Some((s2.sqrt(), ll))
+}
+
+/// Noise of a stretch of a curve for the tail fit of heavy-tailed noise: over each whole
+/// `block` of `segment` (samples `x`, `y`, `x` the sample number, `y` the torque), the
+/// residuals of a local quadratic ([`LOCAL_TERMS`]), whitened with `phi` and put on the scale
+/// of unit noise by the measured growth with the torque, `1 / (1 + sd_slope level)`, as the
+/// AR fit's blocks are, appended to `out`. Not by each block's own spread: 64 samples' sd or
+/// MAD varies by 10-20 % from block to block, and that scale mixture read as heavy tails in
+/// one Gaussian rundown in ten.
+pub fn block_noise(
+    x: &[f64],
+    y: &[f64],
+    segment: std::ops::Range<usize>,
+    block: usize,
+    phi: &[f64],
+    sd_slope: f64,
+    out: &mut Vec<f64>,
+) {
+    let (mut fitted, mut whitened) = (Vec::new(), Vec::new());
+    let end = segment.end.min(x.len()).min(y.len());
+    let mut lo = segment.start;
+    while block > phi.len() + LOCAL_TERMS && lo + block <= end {
+        let ys = &y[lo..lo + block];
+        quadratic_residuals(&x[lo..lo + block], ys, &mut fitted);
+        whiten(&fitted, phi, &mut whitened);
+        let level = ys.iter().sum::<f64>() / block as f64;
+        let unit = 1.0 / (1.0 + sd_slope * level.max(0.0));
+        out.extend(whitened[phi.len()..].iter().map(|v| v * unit));
+        lo += block;
+    }
+}
+
 /// Sample excess kurtosis `m4 / m2^2 - 3` (moments about the mean); NaN when all values are
 /// equal or there are none.
 pub fn excess_kurtosis(values: &[f64]) -> f64 {
@@ -893,6 +1041,50 @@ mod tests {
         // AR(1): v phi^h / (1 - phi^2).
         let g = model_autocovariances(&[0.8], 1.0, 5);
         assert!((g[3] - 0.8f64.powi(3) / 0.36).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_student_t_fit_finds_the_degrees_of_freedom_and_tells_a_normal_apart() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal, StudentT};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        // t4 with scale 2: the median nu of 200 fits of 400 residuals within one grid step of
+        // 4 (the moment estimate's median was 5.8), the scale within 10 %, and the likelihood
+        // ratio beyond the 1 % point of the chi-bar-square null (5.41) in nearly all.
+        let t4 = StudentT::new(4.0).unwrap();
+        let (mut nus, mut scales, mut rejected) = (Vec::new(), Vec::new(), 0);
+        for _ in 0..200 {
+            let r: Vec<f64> = (0..400).map(|_| 2.0 * t4.sample(&mut rng)).collect();
+            let f = fit_student_t(&r).unwrap();
+            nus.push(f.nu);
+            scales.push(f.scales[0]);
+            rejected += usize::from(f.lr > 5.41);
+        }
+        nus.sort_by(f64::total_cmp);
+        scales.sort_by(f64::total_cmp);
+        assert!((3.5..=4.5).contains(&nus[100]), "median nu {}", nus[100]);
+        assert!(
+            (scales[100] - 2.0).abs() < 0.2,
+            "median scale {}",
+            scales[100]
+        );
+        assert!(
+            rejected >= 190,
+            "t4 told from a normal in {rejected} of 200"
+        );
+        // Gaussian residuals: the likelihood ratio's 1 % point is passed in about 1 % of fits
+        // (a boundary null: half a point mass at 0, half a chi-square with 1 df).
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let mut false_heavy = 0;
+        for _ in 0..2000 {
+            let r: Vec<f64> = (0..400).map(|_| normal.sample(&mut rng)).collect();
+            false_heavy += usize::from(fit_student_t(&r).unwrap().lr > 5.41);
+        }
+        assert!(
+            (5..=45).contains(&false_heavy),
+            "Gaussian called heavy-tailed {false_heavy} of 2000"
+        );
+        assert!(fit_student_t(&[0.0; 10]).is_none());
     }
 
     #[test]

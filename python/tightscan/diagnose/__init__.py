@@ -52,7 +52,8 @@ from .fit import _Engine, _Fit, _folds, _one_sided_tests, _Term
 from .candidates import _candidates
 from .identify import _collinearity, _gain_test, _identify
 from .spectrum import _whiteness
-from .select import _grouped_median, _hints, _level2, _model_string, _partial_corr, _partial_residual, _quantiles
+from .select import _grouped_median, _hints, _level2, _level2_inputs, _model_string, _partial_corr, _partial_residual, _quantiles
+from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
@@ -78,6 +79,7 @@ def diagnose(
     seed: int = 0,
     reach: float = 0.3,
     collinear: float = 0.5,
+    grouping_factors: Sequence[str] | str | None = "auto",
 ) -> Diagnosis:
     """Diagnose what the declared tightening model misses, out of sample.
 
@@ -415,7 +417,24 @@ def diagnose(
 
     # level 2
     level2, l2_details, l2_plots = _level2(table, s, final, fold_t, folds, alpha, min_gain, covariates, spec_columns, group_cols, x_scale_t)
-    effects_all = effects + level2
+    # level 2, grouping factors: does a categorical column shift a per-tightening parameter?
+    l2_params, l2_spec, l2_cell = _level2_inputs(table, s, final, x_scale_t, spec_columns)
+    factors, factor_skips = factor_columns(table, s.rows, grouping_factors, l2_spec, group_cols)
+    group_effects, group_details = grouping_factor_analysis(l2_params, factors, l2_cell, alpha=alpha)
+    group_details["columns_not_taken"] = factor_skips
+    group_details["specification_columns"] = l2_spec
+    if "mu_tot" not in l2_params:
+        group_details["mu_tot"] = "not available: needs clamp force and the pitch_mm, d2_mm, dkm_mm columns"
+    found_vs = {e.name for e in level2}
+    for e in group_effects:
+        twin = f"{e.parameters['parameter']}_vs_{e.parameters['factor']}"
+        if twin in found_vs:
+            e.evidence["also_predicts_out_of_sample"] = twin
+        labels = factors[e.parameters["factor"]]
+        pv = l2_params[e.parameters["parameter"]][0]
+        shown = np.isfinite(pv) & (labels != None)  # noqa: E711 - elementwise on an object array
+        l2_plots[e.name] = (labels[shown].astype(str), pv[shown], "categorical")
+    effects_all = effects + level2 + group_effects
 
     model_str = _model_string(s, effects)
     per_t = pa.table(
@@ -460,6 +479,7 @@ def diagnose(
         "periodogram": periodogram_info,
         "rounds": rounds,
         "level2": l2_details,
+        "grouping_factors": group_details,
         "seconds": time.perf_counter() - started,
     }
     plot = {

@@ -15,7 +15,10 @@ Two levels (docs/diagnose-s01.md explains the method and what it found on real d
   run-out).
 - **Between tightenings** (level 2). The per-tightening parameters (torque rate, prevailing
   torque, tightening angle) against tightening-level covariates found in the table (re-use
-  count, position, order in the sequence, date ...).
+  count, position, order in the sequence, date ...), out of sample; and against grouping
+  factors (operator, station, tool, spindle, screw batch: categorical columns) with one-way
+  ANOVA and Kruskal-Wallis within the specification cells, effect sizes, a MixedLM variance
+  component and Holm's correction across factors x parameters (:mod:`.groups`).
 
 Every comparison is out of sample: K-fold across tightenings (grouped so that one thread or part
 never sits on both sides) for global coefficients, and alternate blocks of samples within a
@@ -116,6 +119,23 @@ def diagnose(
     and the competitor loses its gain with it in; a competitor that does the reverse is named
     instead; where neither keeps a gain, the effect is a tie (``Effect.names``) and no member
     is named alone.
+
+    Grouping factors (``details["grouping_factors"]``): ``grouping_factors`` names the
+    categorical columns to test (``"auto"``: string, dictionary and boolean columns, and integer
+    columns with few levels or a telling name such as ``spindle``, with 2 to 50 levels, that are
+    not identifiers, outcomes, channels, counts or specification; ``None``: none). For each
+    factor x parameter (torque rate, prevailing torque, tightening angle; ``mu_tot`` with clamp
+    force and the ``pitch_mm``, ``d2_mm``, ``dkm_mm`` columns): the F-test of the factor within
+    the specification cells (the cell a fixed effect, so a thread size is not read as an
+    operator effect), Kruskal-Wallis on cell-aligned values, partial eta^2 and omega^2,
+    epsilon^2, per-level means with standard errors, and a random-intercept variance component
+    (statsmodels MixedLM: ICC; "not estimated" with the reason when it fails). A factor is
+    claimed, as the level-2 effect ``<parameter>_by_<factor>``, when both tests are significant
+    at ``alpha`` after Holm's correction over all factors x parameters and its partial omega^2
+    is at least 0.01. Two factors or more: two-way ANOVAs with interaction (Type II) of each
+    pair, in the details. These are in-sample tests of a difference between levels; the
+    covariate search above asks the out-of-sample question (does the column predict the
+    parameter) and may name the same column as ``<parameter>_vs_<column>``.
     """
     started = time.perf_counter()
     if folds < 2:

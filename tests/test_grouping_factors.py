@@ -294,3 +294,30 @@ def test_two_way_anova_with_interaction() -> None:
     stn2 = np.where(op == 0, "s0", "s1").astype(object)
     _, det2 = grouping_factor_analysis({"torque_rate": (y, "Nm/deg", "rate")}, {"operator": factors["operator"], "station": stn2})
     assert "not fully crossed" in det2["two_way"][0]["skipped"]
+
+
+def test_repeated_tightenings_of_one_thread_are_not_replicates(monkeypatch: pytest.MonkeyPatch) -> None:
+    # 40 threads re-used 25 times each, every thread its own level (random intercept, sd 1) and
+    # a position constant per thread that does nothing: tested on the tightenings, the thread's
+    # own level would look like a position effect; on the thread means it must not
+    monkeypatch.setattr(gc, "collect", lambda *a: 0)
+    rng = np.random.default_rng(21)
+    alpha, n_sets = 0.05, 100
+    with_clusters = without = 0
+    for _ in range(n_sets):
+        thread = np.repeat(np.arange(40), 25)
+        y = rng.standard_normal(40)[thread] + 0.3 * rng.standard_normal(1000)
+        pos = np.array(["left", "right"])[rng.permutation(np.arange(40) % 2)][thread].astype(object)
+        params = {"prevailing_torque": (y, "Nm", "p")}
+        clusters = np.array([f"t{v}" for v in thread], dtype=object)
+        e1, d1 = grouping_factor_analysis(params, {"workpiece_location": pos}, clusters=clusters, alpha=alpha, variance_components=False)
+        e0, _ = grouping_factor_analysis(params, {"workpiece_location": pos}, alpha=alpha, variance_components=False)
+        assert d1["tests"][0]["unit"] == "cluster mean" and d1["tests"][0]["units"] == 40
+        with_clusters += bool(e1)
+        without += bool(e0)
+    assert with_clusters / n_sets <= alpha + 3 * math.sqrt(alpha * (1 - alpha) / n_sets)
+    assert without / n_sets > 0.3  # pseudo-replication (0.46 measured, seed 21)
+    # a factor that varies within the clusters stays on the tightenings
+    op = np.array([f"op{v}" for v in rng.integers(0, 3, 1000)], dtype=object)
+    _, d = grouping_factor_analysis({"p": (rng.standard_normal(1000), "Nm", "p")}, {"operator": op}, clusters=clusters, variance_components=False)
+    assert d["tests"][0]["unit"] == "tightening" and "varies within clusters" in d["tests"][0]["clusters_note"]

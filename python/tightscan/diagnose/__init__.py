@@ -440,7 +440,13 @@ def diagnose(
     # level 2, grouping factors: does a categorical column shift a per-tightening parameter?
     l2_params, l2_spec, l2_cell = _level2_inputs(table, s, final, x_scale_t, spec_columns)
     factors, factor_skips = factor_columns(table, s.rows, grouping_factors, l2_spec, group_cols)
-    group_effects, group_details = grouping_factor_analysis(l2_params, factors, l2_cell, alpha=alpha)
+    clusters = None
+    if group_cols:
+        ridx = pa.array(s.rows)
+        keys = list(zip(*[table.column(c).take(ridx).to_pylist() for c in group_cols]))
+        clusters = np.array([str(k) for k in keys], dtype=object)
+    group_effects, group_details = grouping_factor_analysis(l2_params, factors, l2_cell, clusters=clusters, alpha=alpha)
+    group_details["clusters"] = group_cols
     group_details["columns_not_taken"] = factor_skips
     group_details["specification_columns"] = l2_spec
     if "mu_tot" not in l2_params:

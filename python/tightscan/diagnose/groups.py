@@ -9,6 +9,10 @@ thread size or a target torque is never read as an operator effect):
   and omega^2;
 - Kruskal-Wallis (:func:`scipy.stats.kruskal`) on the values aligned by their cell's median,
   with epsilon^2 = H / (n - 1);
+- repeated tightenings of one unit (the ``group_by`` columns of the folds: a thread re-used, a
+  part): when the factor is constant within each such cluster, the tests take the cluster means
+  as their units, so that 25 re-uses of one thread do not count as 25 replicates of its
+  position or operator;
 - a variance component: random intercept per level (statsmodels ``MixedLM``, REML, the cells as
   fixed effects): group and residual variance, ICC. Convergence problems are reported
   ("not estimated" with the reason), never raised.
@@ -145,16 +149,18 @@ def _dummies(codes: I64, drop_first: bool) -> F64:
     return m[:, 1:] if drop_first else m
 
 
-def _one_pair(y: F64, labels: Labels, cell: Labels, variance_components: bool) -> dict[str, Any]:
-    """Tests and effect sizes of one factor on one parameter (finite values, labelled rows)."""
-    import scipy.stats as st
-    import statsmodels.api as sm
+def _one_pair(y: F64, labels: Labels, cell: Labels, variance_components: bool, clusters: Labels | None = None) -> dict[str, Any]:
+    """Tests and effect sizes of one factor on one parameter (finite values, labelled rows).
 
+    ``clusters``: repeated tightenings of one unit (a thread re-used, a part): when the factor
+    is constant within each cluster, the tests take the cluster means as their units (the
+    tightenings of one cluster are not independent replicates of the factor)."""
     out: dict[str, Any] = {}
     ok = np.isfinite(y) & (labels != None)  # noqa: E711
     if ok.sum() < 2 * MIN_LEVEL_N:
         return {"skipped": f"only {int(ok.sum())} tightenings with a value and a level"}
     y, labels, cell = y[ok], labels[ok].astype(str), cell[ok].astype(str)
+    clu = clusters[ok].astype(str) if clusters is not None else None
     # gross outliers of the parameter (8 MADs from their cell's median) are left out, reported
     cell_codes = _codes(cell)
     med = np.array([np.median(y[cell_codes == c]) for c in range(int(cell_codes.max()) + 1)])
@@ -163,11 +169,13 @@ def _one_pair(y: F64, labels: Labels, cell: Labels, variance_components: bool) -
     inl = np.abs(dev) <= 8 * max(mad, 1e-12 * max(1.0, float(np.max(np.abs(y)))))
     out["outliers_left_out"] = int((~inl).sum())
     y, labels, cell = y[inl], labels[inl], cell[inl]
+    clu = clu[inl] if clu is not None else None
     levels, counts = np.unique(labels, return_counts=True)
     small = [str(lev) for lev, c in zip(levels, counts) if c < MIN_LEVEL_N]
     if small:
         keep = ~np.isin(labels, small)
         y, labels, cell = y[keep], labels[keep], cell[keep]
+        clu = clu[keep] if clu is not None else None
         out["levels_left_out"] = {"levels": small, "reason": f"fewer than {MIN_LEVEL_N} tightenings"}
     levels = np.unique(labels)
     if len(levels) < 2:
@@ -178,37 +186,33 @@ def _one_pair(y: F64, labels: Labels, cell: Labels, variance_components: bool) -
     ccodes = _codes(cell)
     n_cells = int(ccodes.max()) + 1
     x0 = _dummies(ccodes, drop_first=False)  # cell means (one column: the intercept)
-    x1 = np.c_[x0, _dummies(fcodes, drop_first=True)]
-    r0 = int(np.linalg.matrix_rank(x0))
-    r1 = int(np.linalg.matrix_rank(x1))
-    df1, df2 = r1 - r0, n - r1
-    if df1 < 1:
+    if np.linalg.matrix_rank(np.c_[x0, _dummies(fcodes, drop_first=True)]) == np.linalg.matrix_rank(x0):
         out["skipped"] = "confounded with the specification cell: no level varies within a cell"
         return out
-    if df2 < 2:
-        out["skipped"] = "too few tightenings for the levels and cells"
+    # the unit of the tests: the tightening, or the cluster mean where the factor is constant
+    # within clusters (a tightening's cell: its cluster's most frequent one)
+    unit = "tightening"
+    uy, uf, uc = y, fcodes, ccodes
+    if clu is not None:
+        kc = _codes(clu.astype(object))
+        n_clu = int(kc.max()) + 1
+        per = np.zeros((n_clu, len(levels)))
+        np.add.at(per, (kc, fcodes), 1.0)
+        if n_clu < n and np.all((per > 0).sum(axis=1) == 1):
+            cnt = np.bincount(kc, minlength=n_clu).astype(np.float64)
+            uy = np.bincount(kc, weights=y, minlength=n_clu) / cnt
+            uf = np.argmax(per, axis=1).astype(np.int64)
+            cc = np.zeros((n_clu, n_cells))
+            np.add.at(cc, (kc, ccodes), 1.0)
+            uc = np.argmax(cc, axis=1).astype(np.int64)
+            unit = "cluster mean"
+            out["clusters"] = n_clu
+        else:
+            out["clusters_note"] = "the factor varies within clusters: tightenings are the units"
+    t = _tests(uy, uf, uc, len(levels))
+    if "skipped" in t:
+        out["skipped"] = t["skipped"]
         return out
-    full = sm.OLS(y, x1).fit()
-    reduced = sm.OLS(y, x0).fit()
-    f_stat, p_f, _df = full.compare_f_test(reduced)
-    ss_f = float(reduced.ssr - full.ssr)
-    ss_res = float(full.ssr)
-    ms_res = ss_res / df2
-    f_stat = float(f_stat) if np.isfinite(f_stat) else 0.0
-    p_f = float(p_f) if np.isfinite(p_f) else 1.0
-    eta2 = ss_f / (ss_f + ss_res) if ss_f + ss_res > 0 else 0.0
-    omega2 = max(0.0, (ss_f - df1 * ms_res) / (ss_f + (n - df1) * ms_res)) if ss_f + ss_res > 0 else 0.0
-    # Kruskal-Wallis on cell-aligned values (each cell's median removed)
-    cmed = np.array([np.median(y[ccodes == c]) for c in range(n_cells)])
-    aligned = y - cmed[ccodes] if n_cells > 1 else y
-    try:
-        h, p_kw = st.kruskal(*[aligned[fcodes == k] for k in range(len(levels))])
-        h, p_kw = float(h), float(p_kw)
-        if not np.isfinite(p_kw):
-            h, p_kw = 0.0, 1.0
-    except ValueError:  # all values equal
-        h, p_kw = 0.0, 1.0
-    eps2 = h / (n - 1) if n > 1 else 0.0
     cell_mean = np.array([np.mean(y[ccodes == c]) for c in range(n_cells)])
     within = y - cell_mean[ccodes] + float(np.mean(y))
     per_level: dict[str, Any] = {}
@@ -222,23 +226,76 @@ def _one_pair(y: F64, labels: Labels, cell: Labels, variance_components: bool) -
             "mean_within_cells": float(np.mean(w)),
             "se_within_cells": float(np.std(w, ddof=1) / math.sqrt(len(w))) if len(w) > 1 else None,
         }
+        if unit == "cluster mean":
+            per_level[str(lev)]["clusters"] = int(np.sum(uf == k))
     wm = [float(v["mean_within_cells"]) for v in per_level.values()]
+    # in-sample residual sd of the tightenings with and without the level means
+    full_sd = math.sqrt(float(np.sum((within - np.array(wm)[fcodes]) ** 2)) / max(n - n_cells - len(levels) + 1, 1))
     out.update(
         {
             "tightenings": n,
+            "unit": unit,
+            "units": int(len(uy)),
             "levels": len(levels),
             "cells": n_cells,
-            "anova": {"test": "F-test of y ~ cell + factor against y ~ cell" if n_cells > 1 else "one-way ANOVA", "f_statistic": f_stat, "df": [df1, df2], "p_value": p_f},
-            "kruskal_wallis": {"test": "Kruskal-Wallis on cell-aligned values" if n_cells > 1 else "Kruskal-Wallis", "h_statistic": h, "df": len(levels) - 1, "p_value": p_kw},
-            "effect_size": {"eta_squared_partial": eta2, "omega_squared_partial": omega2, "epsilon_squared": eps2},
+            "anova": t["anova"],
+            "kruskal_wallis": t["kruskal_wallis"],
+            "effect_size": t["effect_size"],
             "per_level": per_level,
             "spread_within_cells": float(max(wm) - min(wm)),
-            "residual_sd": math.sqrt(ms_res),
-            "sd_within_cells": math.sqrt(float(reduced.ssr) / max(n - r0, 1)),
+            "residual_sd": full_sd,
+            "sd_within_cells": math.sqrt(float(np.sum((within - np.mean(y)) ** 2)) / max(n - n_cells, 1)),
         }
     )
-    out["variance_components"] = _variance_components(y, x0, labels) if variance_components else {"estimated": False, "reason": "not asked for"}
+    out["variance_components"] = _variance_components(uy, _dummies(uc, drop_first=False), levels[uf]) if variance_components else {"estimated": False, "reason": "not asked for"}
     return out
+
+
+def _tests(y: F64, fcodes: I64, ccodes: I64, n_levels: int) -> dict[str, Any]:
+    """F-test of the factor within the cells, Kruskal-Wallis on cell-aligned values, effect
+    sizes, on the given units."""
+    import scipy.stats as st
+    import statsmodels.api as sm
+
+    n = len(y)
+    n_cells = int(ccodes.max()) + 1
+    if len(np.unique(fcodes)) < 2:
+        return {"skipped": "fewer than two levels with enough units"}
+    x0 = _dummies(ccodes, drop_first=False)
+    x1 = np.c_[x0, _dummies(fcodes, drop_first=True)]
+    r0 = int(np.linalg.matrix_rank(x0))
+    r1 = int(np.linalg.matrix_rank(x1))
+    df1, df2 = r1 - r0, n - r1
+    if df1 < 1:
+        return {"skipped": "confounded with the specification cell: no level varies within a cell"}
+    if df2 < 2:
+        return {"skipped": "too few units for the levels and cells"}
+    full = sm.OLS(y, x1).fit()
+    reduced = sm.OLS(y, x0).fit()
+    f_stat, p_f, _df = full.compare_f_test(reduced)
+    ss_f = float(reduced.ssr - full.ssr)
+    ss_res = float(full.ssr)
+    ms_res = ss_res / df2
+    f_stat = float(f_stat) if np.isfinite(f_stat) else 0.0
+    p_f = float(p_f) if np.isfinite(p_f) else 1.0
+    eta2 = ss_f / (ss_f + ss_res) if ss_f + ss_res > 0 else 0.0
+    omega2 = max(0.0, (ss_f - df1 * ms_res) / (ss_f + (n - df1) * ms_res)) if ss_f + ss_res > 0 else 0.0
+    # Kruskal-Wallis on cell-aligned values (each cell's median removed)
+    cmed = np.array([np.median(y[ccodes == c]) if np.any(ccodes == c) else 0.0 for c in range(n_cells)])
+    aligned = y - cmed[ccodes] if n_cells > 1 else y
+    groups = [aligned[fcodes == k] for k in range(n_levels) if np.any(fcodes == k)]
+    try:
+        h, p_kw = st.kruskal(*groups)
+        h, p_kw = float(h), float(p_kw)
+        if not np.isfinite(p_kw):
+            h, p_kw = 0.0, 1.0
+    except ValueError:  # all values equal
+        h, p_kw = 0.0, 1.0
+    return {
+        "anova": {"test": "F-test of y ~ cell + factor against y ~ cell" if n_cells > 1 else "one-way ANOVA", "f_statistic": f_stat, "df": [df1, df2], "p_value": p_f},
+        "kruskal_wallis": {"test": "Kruskal-Wallis on cell-aligned values" if n_cells > 1 else "Kruskal-Wallis", "h_statistic": h, "df": len(groups) - 1, "p_value": p_kw},
+        "effect_size": {"eta_squared_partial": eta2, "omega_squared_partial": omega2, "epsilon_squared": h / (n - 1) if n > 1 else 0.0},
+    }
 
 
 def _variance_components(y: F64, x0: F64, labels: Labels) -> dict[str, Any]:
@@ -329,6 +386,7 @@ def grouping_factor_analysis(
     factors: dict[str, Labels],
     cell: Labels | None = None,
     *,
+    clusters: Labels | None = None,
     alpha: float = 0.01,
     correction: str = "holm",
     min_effect: float = MIN_EFFECT,
@@ -340,7 +398,8 @@ def grouping_factor_analysis(
 
     ``params``: name -> (values per tightening, unit, description). ``factors``: name -> labels
     per tightening (``None`` where missing). ``cell``: specification cell per tightening (or
-    None). Returns the claimed :class:`Effect` objects (``<parameter>_by_<factor>``) and the
+    None). ``clusters``: repeated-measure units per tightening (e.g. the thread a tightening
+    re-uses), or None: a factor constant within clusters is tested on cluster means. Returns the claimed :class:`Effect` objects (``<parameter>_by_<factor>``) and the
     full table (JSON-ready)."""
     from statsmodels.stats.multitest import multipletests
 
@@ -350,7 +409,7 @@ def grouping_factor_analysis(
     skipped: list[dict[str, Any]] = []
     for fname, labels in factors.items():
         for pname, (values, unit, _desc) in params.items():
-            r = _one_pair(np.asarray(values, dtype=np.float64), np.asarray(labels, dtype=object), cells, variance_components)
+            r = _one_pair(np.asarray(values, dtype=np.float64), np.asarray(labels, dtype=object), cells, variance_components, None if clusters is None else np.asarray(clusters, dtype=object))
             r = {"factor": fname, "parameter": pname, "unit": unit} | r
             (skipped if "skipped" in r else tests).append(r)
     details: dict[str, Any] = {
@@ -409,6 +468,8 @@ def grouping_factor_analysis(
                         "family_size": len(tests),
                         "n_per_level": {k: v["n"] for k, v in t["per_level"].items()},
                         "tightenings": t["tightenings"],
+                        "unit": t["unit"],
+                        "units": t["units"],
                         "cells": t["cells"],
                         "rmse_before": t["sd_within_cells"],
                         "rmse_gain": (t["sd_within_cells"] - t["residual_sd"]) / t["sd_within_cells"] if t["sd_within_cells"] > 0 else 0.0,

@@ -312,7 +312,7 @@ def test_repeated_tightenings_of_one_thread_are_not_replicates(monkeypatch: pyte
         clusters = np.array([f"t{v}" for v in thread], dtype=object)
         e1, d1 = grouping_factor_analysis(params, {"workpiece_location": pos}, clusters=clusters, alpha=alpha, variance_components=False)
         e0, _ = grouping_factor_analysis(params, {"workpiece_location": pos}, alpha=alpha, variance_components=False)
-        assert d1["tests"][0]["unit"] == "cluster mean" and d1["tests"][0]["units"] == 40
+        assert d1["tests"][0]["test_unit"] == "cluster mean" and d1["tests"][0]["unit"] == "Nm" and d1["tests"][0]["units"] == 40
         with_clusters += bool(e1)
         without += bool(e0)
     assert with_clusters / n_sets <= alpha + 3 * math.sqrt(alpha * (1 - alpha) / n_sets)
@@ -320,4 +320,4 @@ def test_repeated_tightenings_of_one_thread_are_not_replicates(monkeypatch: pyte
     # a factor that varies within the clusters stays on the tightenings
     op = np.array([f"op{v}" for v in rng.integers(0, 3, 1000)], dtype=object)
     _, d = grouping_factor_analysis({"p": (rng.standard_normal(1000), "Nm", "p")}, {"operator": op}, clusters=clusters, variance_components=False)
-    assert d["tests"][0]["unit"] == "tightening" and "varies within clusters" in d["tests"][0]["clusters_note"]
+    assert d["tests"][0]["test_unit"] == "tightening" and "varies within clusters" in d["tests"][0]["clusters_note"]

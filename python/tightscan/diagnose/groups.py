@@ -234,7 +234,7 @@ def _one_pair(y: F64, labels: Labels, cell: Labels, variance_components: bool, c
     out.update(
         {
             "tightenings": n,
-            "unit": unit,
+            "test_unit": unit,
             "units": int(len(uy)),
             "levels": len(levels),
             "cells": n_cells,
@@ -468,7 +468,7 @@ def grouping_factor_analysis(
                         "family_size": len(tests),
                         "n_per_level": {k: v["n"] for k, v in t["per_level"].items()},
                         "tightenings": t["tightenings"],
-                        "unit": t["unit"],
+                        "test_unit": t["test_unit"],
                         "units": t["units"],
                         "cells": t["cells"],
                         "rmse_before": t["sd_within_cells"],

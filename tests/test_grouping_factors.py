@@ -321,3 +321,21 @@ def test_repeated_tightenings_of_one_thread_are_not_replicates(monkeypatch: pyte
     op = np.array([f"op{v}" for v in rng.integers(0, 3, 1000)], dtype=object)
     _, d = grouping_factor_analysis({"p": (rng.standard_normal(1000), "Nm", "p")}, {"operator": op}, clusters=clusters, variance_components=False)
     assert d["tests"][0]["test_unit"] == "tightening" and "varies within clusters" in d["tests"][0]["clusters_note"]
+
+
+def test_degenerate_designs_do_not_warn_or_raise() -> None:
+    # (pytest turns warnings into errors) a parameter that does not vary, a level confined to
+    # one cell (rank-deficient design), clusters whose cells differ
+    rng = np.random.default_rng(3)
+    lab = np.array(["a"] * 10 + ["b"] * 10, dtype=object)
+    _, d = grouping_factor_analysis({"p": (np.ones(20), "1", "p")}, {"f": lab, "g": np.array(["x", "y"] * 10, dtype=object)})
+    assert [t["anova"]["p_value"] for t in d["tests"]] == [1.0, 1.0] and d["two_way"][0]["skipped"] == "the parameter does not vary"
+    cell = np.array(["M8"] * 30 + ["M12"] * 30, dtype=object)
+    f = np.array(["a", "b", "c"] * 10 + ["a", "b"] * 15, dtype=object)  # c only on M8
+    _, d = grouping_factor_analysis({"p": (rng.standard_normal(60), "1", "p")}, {"f": f}, cell)
+    assert d["tests"][0]["anova"]["df"] == [2, 56]
+    clusters = np.array([f"k{i // 5}" for i in range(60)], dtype=object)
+    cell2 = np.where(rng.random(60) < 0.8, cell, "M10").astype(object)
+    f2 = np.array([["a", "b"][(i // 5) % 2] for i in range(60)], dtype=object)
+    _, d = grouping_factor_analysis({"p": (rng.standard_normal(60), "1", "p")}, {"f": f2}, cell2, clusters=clusters)
+    assert d["tests"][0]["test_unit"] == "cluster mean" and d["tests"][0]["units"] == 12

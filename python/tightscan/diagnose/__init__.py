@@ -438,6 +438,7 @@ def diagnose(
     # level 2
     level2, l2_details, l2_plots = _level2(table, s, final, fold_t, folds, alpha, min_gain, covariates, spec_columns, group_cols, x_scale_t)
     # level 2, grouping factors: does a categorical column shift a per-tightening parameter?
+    started_groups = time.perf_counter()
     l2_params, l2_spec, l2_cell = _level2_inputs(table, s, final, x_scale_t, spec_columns)
     factors, factor_skips = factor_columns(table, s.rows, grouping_factors, l2_spec, group_cols)
     clusters = None
@@ -447,6 +448,7 @@ def diagnose(
         clusters = np.array([str(k) for k in keys], dtype=object)
     group_effects, group_details = grouping_factor_analysis(l2_params, factors, l2_cell, clusters=clusters, alpha=alpha)
     group_details["clusters"] = group_cols
+    group_details["seconds"] = time.perf_counter() - started_groups
     group_details["columns_not_taken"] = factor_skips
     group_details["specification_columns"] = l2_spec
     if "mu_tot" not in l2_params:

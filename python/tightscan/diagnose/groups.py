@@ -204,7 +204,7 @@ def _one_pair(y: F64, labels: Labels, cell: Labels, variance_components: bool, c
             uf = np.argmax(per, axis=1).astype(np.int64)
             cc = np.zeros((n_clu, n_cells))
             np.add.at(cc, (kc, ccodes), 1.0)
-            uc = np.argmax(cc, axis=1).astype(np.int64)
+            uc = np.unique(np.argmax(cc, axis=1), return_inverse=True)[1].astype(np.int64)  # cells left, renumbered
             unit = "cluster mean"
             out["clusters"] = n_clu
         else:
@@ -270,9 +270,13 @@ def _tests(y: F64, fcodes: I64, ccodes: I64, n_levels: int) -> dict[str, Any]:
         return {"skipped": "confounded with the specification cell: no level varies within a cell"}
     if df2 < 2:
         return {"skipped": "too few units for the levels and cells"}
-    full = sm.OLS(y, x1).fit()
-    reduced = sm.OLS(y, x0).fit()
-    f_stat, p_f, _df = full.compare_f_test(reduced)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        # a perfect fit (F inf or nan) and a rank-deficient design (a level confined to some
+        # cells) are handled here: the degrees of freedom come from the ranks
+        warnings.simplefilter("ignore")
+        full = sm.OLS(y, x1).fit()
+        reduced = sm.OLS(y, x0).fit()
+        f_stat, p_f, _df = full.compare_f_test(reduced)
     ss_f = float(reduced.ssr - full.ssr)
     ss_res = float(full.ssr)
     ms_res = ss_res / df2
@@ -285,7 +289,9 @@ def _tests(y: F64, fcodes: I64, ccodes: I64, n_levels: int) -> dict[str, Any]:
     aligned = y - cmed[ccodes] if n_cells > 1 else y
     groups = [aligned[fcodes == k] for k in range(n_levels) if np.any(fcodes == k)]
     try:
-        h, p_kw = st.kruskal(*groups)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all values tied: nan, handled below
+            h, p_kw = st.kruskal(*groups)
         h, p_kw = float(h), float(p_kw)
         if not np.isfinite(p_kw):
             h, p_kw = 0.0, 1.0
@@ -349,6 +355,8 @@ def _two_way(y: F64, a: Labels, b: Labels, cell: Labels) -> dict[str, Any]:
     y, a, b, cell = y[ok], a[ok].astype(str), b[ok].astype(str), cell[ok].astype(str)
     if len(y) < 8:
         return {"skipped": "too few tightenings with both factors"}
+    if float(np.std(y)) <= 1e-12 * max(1.0, float(np.max(np.abs(y)))):
+        return {"skipped": "the parameter does not vary"}
     la, lb = np.unique(a), np.unique(b)
     if len(la) < 2 or len(lb) < 2:
         return {"skipped": "a factor has one level here"}

@@ -261,8 +261,12 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     group_by: Sequence[str] | str | None = "auto"
     if args.group_by is not None:
         group_by = args.group_by if args.group_by else None
+    grouping: Sequence[str] | str | None = "auto"
+    if args.grouping_factors is not None:
+        grouping = args.grouping_factors if args.grouping_factors else None
     result = diagnose(
         table,
+        grouping_factors=grouping,
         folds=args.folds,
         alpha=args.alpha,
         min_gain=args.min_gain,
@@ -382,6 +386,13 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--min-gain", type=float, default=0.01, help="smallest relative RMSE reduction of an effect (default %(default)s)")
     diag.add_argument("--max-effects", type=int, default=6, help="level-1 effects at most (default %(default)s)")
     diag.add_argument("--group-by", nargs="*", default=None, metavar="COLUMN", help="columns that group the folds (default: auto; none given: no grouping)")
+    diag.add_argument(
+        "--grouping-factors",
+        nargs="*",
+        default=None,
+        metavar="COLUMN",
+        help="categorical columns tested as level-2 grouping factors (default: auto; none given: none)",
+    )
     diag.add_argument("--limit", type=int, default=None, metavar="N", help="only the first N tightenings")
     diag.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
     diag.set_defaults(func=cmd_diagnose)

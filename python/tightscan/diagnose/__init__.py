@@ -15,7 +15,10 @@ Two levels (docs/diagnose-s01.md explains the method and what it found on real d
   run-out).
 - **Between tightenings** (level 2). The per-tightening parameters (torque rate, prevailing
   torque, tightening angle) against tightening-level covariates found in the table (re-use
-  count, position, order in the sequence, date ...).
+  count, position, order in the sequence, date ...), out of sample; and against grouping
+  factors (operator, station, tool, spindle, screw batch: categorical columns) with one-way
+  ANOVA and Kruskal-Wallis within the specification cells, effect sizes, a MixedLM variance
+  component and Holm's correction across factors x parameters (:mod:`.groups`).
 
 Every comparison is out of sample: K-fold across tightenings (grouped so that one thread or part
 never sits on both sides) for global coefficients, and alternate blocks of samples within a
@@ -52,7 +55,8 @@ from .fit import _Engine, _Fit, _folds, _one_sided_tests, _Term
 from .candidates import _candidates
 from .identify import _collinearity, _gain_test, _identify
 from .spectrum import _whiteness
-from .select import _grouped_median, _hints, _level2, _model_string, _partial_corr, _partial_residual, _quantiles
+from .select import _grouped_median, _hints, _level2, _level2_inputs, _model_string, _partial_corr, _partial_residual, _quantiles
+from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
@@ -78,6 +82,7 @@ def diagnose(
     seed: int = 0,
     reach: float = 0.3,
     collinear: float = 0.5,
+    grouping_factors: Sequence[str] | str | None = "auto",
 ) -> Diagnosis:
     """Diagnose what the declared tightening model misses, out of sample.
 
@@ -114,6 +119,23 @@ def diagnose(
     and the competitor loses its gain with it in; a competitor that does the reverse is named
     instead; where neither keeps a gain, the effect is a tie (``Effect.names``) and no member
     is named alone.
+
+    Grouping factors (``details["grouping_factors"]``): ``grouping_factors`` names the
+    categorical columns to test (``"auto"``: string, dictionary and boolean columns, and integer
+    columns with few levels or a telling name such as ``spindle``, with 2 to 50 levels, that are
+    not identifiers, outcomes, channels, counts or specification; ``None``: none). For each
+    factor x parameter (torque rate, prevailing torque, tightening angle; ``mu_tot`` with clamp
+    force and the ``pitch_mm``, ``d2_mm``, ``dkm_mm`` columns): the F-test of the factor within
+    the specification cells (the cell a fixed effect, so a thread size is not read as an
+    operator effect), Kruskal-Wallis on cell-aligned values, partial eta^2 and omega^2,
+    epsilon^2, per-level means with standard errors, and a random-intercept variance component
+    (statsmodels MixedLM: ICC; "not estimated" with the reason when it fails). A factor is
+    claimed, as the level-2 effect ``<parameter>_by_<factor>``, when both tests are significant
+    at ``alpha`` after Holm's correction over all factors x parameters and its partial omega^2
+    is at least 0.01. Two factors or more: two-way ANOVAs with interaction (Type II) of each
+    pair, in the details. These are in-sample tests of a difference between levels; the
+    covariate search above asks the out-of-sample question (does the column predict the
+    parameter) and may name the same column as ``<parameter>_vs_<column>``.
     """
     started = time.perf_counter()
     if folds < 2:
@@ -415,7 +437,32 @@ def diagnose(
 
     # level 2
     level2, l2_details, l2_plots = _level2(table, s, final, fold_t, folds, alpha, min_gain, covariates, spec_columns, group_cols, x_scale_t)
-    effects_all = effects + level2
+    # level 2, grouping factors: does a categorical column shift a per-tightening parameter?
+    started_groups = time.perf_counter()
+    l2_params, l2_spec, l2_cell = _level2_inputs(table, s, final, x_scale_t, spec_columns)
+    factors, factor_skips = factor_columns(table, s.rows, grouping_factors, l2_spec, group_cols)
+    clusters = None
+    if group_cols:
+        ridx = pa.array(s.rows)
+        keys = list(zip(*[table.column(c).take(ridx).to_pylist() for c in group_cols]))
+        clusters = np.array([str(k) for k in keys], dtype=object)
+    group_effects, group_details = grouping_factor_analysis(l2_params, factors, l2_cell, clusters=clusters, alpha=alpha)
+    group_details["clusters"] = group_cols
+    group_details["seconds"] = time.perf_counter() - started_groups
+    group_details["columns_not_taken"] = factor_skips
+    group_details["specification_columns"] = l2_spec
+    if "mu_tot" not in l2_params:
+        group_details["mu_tot"] = "not available: needs clamp force and the pitch_mm, d2_mm, dkm_mm columns"
+    found_vs = {e.name for e in level2}
+    for e in group_effects:
+        twin = f"{e.parameters['parameter']}_vs_{e.parameters['factor']}"
+        if twin in found_vs:
+            e.evidence["also_predicts_out_of_sample"] = twin
+        labels = factors[e.parameters["factor"]]
+        pv = l2_params[e.parameters["parameter"]][0]
+        shown = np.isfinite(pv) & (labels != None)  # noqa: E711 - elementwise on an object array
+        l2_plots[e.name] = (labels[shown].astype(str), pv[shown], "categorical")
+    effects_all = effects + level2 + group_effects
 
     model_str = _model_string(s, effects)
     per_t = pa.table(
@@ -460,6 +507,7 @@ def diagnose(
         "periodogram": periodogram_info,
         "rounds": rounds,
         "level2": l2_details,
+        "grouping_factors": group_details,
         "seconds": time.perf_counter() - started,
     }
     plot = {

@@ -15,7 +15,9 @@ import pyarrow as pa
 from .prepare import PathLike
 
 #: Stable names of the level-1 (within-tightening) effects the loop can name, with what they
-#: mean. Level-2 effects are named ``<parameter>_vs_<covariate>``.
+#: mean. Level-2 effects are named ``<parameter>_vs_<covariate>`` (out-of-sample covariate
+#: search) and ``<parameter>_by_<factor>`` (a grouping factor shifts the parameter: ANOVA and
+#: Kruskal-Wallis within specification cells, Holm-corrected).
 EFFECT_NAMES: dict[str, str] = {
     "speed_dependent_friction": "friction torque changes with the tool speed: T (1 + a ln(v / v_ref)) in the elastic zone",
     "speed_dependent_prevailing_torque": "the rundown (prevailing) torque changes with the tool speed",

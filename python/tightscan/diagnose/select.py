@@ -193,6 +193,44 @@ def _bin_edges(x: F64) -> F64:
     return np.unique(np.percentile(fin, np.linspace(0, 100, 11)[1:-1]))
 
 
+def _level2_inputs(table: pa.Table, s: _Samples, fit: _Fit, x_scale_t: F64, spec_columns: Sequence[str] | str | None) -> tuple[dict[str, tuple[F64, str, str]], list[str], npt.NDArray[Any]]:
+    """The per-tightening parameters of level 2 (name -> values, unit, description), the
+    specification columns and each tightening's specification cell."""
+    g = _Groups(s.gid, s.n_tight)
+    rd = (s.seg == 1).astype(np.float64)
+    rate = fit.pcoef[:, 1] / np.where(x_scale_t > 0, x_scale_t, 1.0)
+    # the fitted rundown level (declared level plus whatever the added effects put there)
+    fitted = s.y - fit.resid
+    prevailing = np.where(g.sum(rd) > 0, g.sum(fitted * rd) / np.maximum(g.sum(rd), 1), np.nan)
+    final_angle = s.phases["peak_angle"] - s.phases["snug_angle"]
+    params: dict[str, tuple[F64, str, str]] = {
+        "torque_rate": (rate, "Nm/kN" if s.has_clamp else "Nm/deg", "torque rate b_j of the elastic line"),
+        "prevailing_torque": (prevailing, "Nm", "prevailing (rundown) torque c_j"),
+        "tightening_angle": (final_angle, "deg", "angle from snug to the peak torque"),
+    }
+    if spec_columns == "auto":
+        spec = [c for c in _SPEC_DEFAULT if c in table.column_names]
+    elif spec_columns is None:
+        spec = []
+    else:
+        spec = [spec_columns] if isinstance(spec_columns, str) else list(spec_columns)
+    idx = pa.array(s.rows)
+    geometry = ("pitch_mm", "d2_mm", "dkm_mm")
+    if s.has_clamp and all(c in table.column_names for c in geometry):
+        # with clamp force and the thread's geometry: b_j = 0.16 P + mu_tot (0.58 d2 + Dkm / 2)
+        # [Nm/kN = mm], so each tightening's total friction coefficient follows from its slope
+        pitch, d2, dkm = (np.asarray(pc.cast(table.column(c).take(idx), pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64) for c in geometry)
+        lever = 0.58 * d2 + 0.5 * dkm
+        mu = np.where(lever > 0, (rate - 0.16 * pitch) / np.where(lever > 0, lever, 1.0), np.nan)
+        params["mu_tot"] = (mu, "1", "total friction coefficient from the torque-clamp force slope and the thread geometry")
+    if spec:
+        keys = list(zip(*[table.column(c).take(idx).to_pylist() for c in spec]))
+        cell = np.array([str(k) for k in keys], dtype=object)
+    else:
+        cell = np.array(["all"] * s.n_tight, dtype=object)
+    return params, spec, cell
+
+
 def _level2(
     table: pa.Table,
     s: _Samples,
@@ -206,32 +244,8 @@ def _level2(
     group_cols: list[str],
     x_scale_t: F64,
 ) -> tuple[list[Effect], dict[str, Any], dict[str, Any]]:
-    g = _Groups(s.gid, s.n_tight)
-    rd = (s.seg == 1).astype(np.float64)
-    el = (s.seg == 0).astype(np.float64)
-    rate = fit.pcoef[:, 1] / np.where(x_scale_t > 0, x_scale_t, 1.0)
-    # the fitted rundown level (declared level plus whatever the added effects put there)
-    fitted = s.y - fit.resid
-    prevailing = np.where(g.sum(rd) > 0, g.sum(fitted * rd) / np.maximum(g.sum(rd), 1), np.nan)
-    final_angle = s.phases["peak_angle"] - s.phases["snug_angle"]
+    params, spec, cell = _level2_inputs(table, s, fit, x_scale_t, spec_columns)
     xvar = x_scale_t**2
-    params: dict[str, tuple[F64, str, str]] = {
-        "torque_rate": (rate, "Nm/kN" if s.has_clamp else "Nm/deg", "torque rate b_j of the elastic line"),
-        "prevailing_torque": (prevailing, "Nm", "prevailing (rundown) torque c_j"),
-        "tightening_angle": (final_angle, "deg", "angle from snug to the peak torque"),
-    }
-    if spec_columns == "auto":
-        spec = [c for c in _SPEC_DEFAULT if c in table.column_names]
-    elif spec_columns is None:
-        spec = []
-    else:
-        spec = [spec_columns] if isinstance(spec_columns, str) else list(spec_columns)
-    idx = pa.array(s.rows)
-    if spec:
-        keys = list(zip(*[table.column(c).take(idx).to_pylist() for c in spec]))
-        cell = np.array([str(k) for k in keys], dtype=object)
-    else:
-        cell = np.array(["all"] * s.n_tight, dtype=object)
     covs = _covariate_columns(table, s.rows, covariates, spec, group_cols)
     effects: list[Effect] = []
     details: dict[str, Any] = {"specification_columns": spec, "covariates": {k: v[0] for k, v in covs.items()}, "parameters": {}}

@@ -12,7 +12,7 @@ import numpy.typing as npt
 from .result import EFFECT_NAMES
 from .prepare import _Groups, _Samples, B8, F64
 from .fit import _Engine, _Fit, _Term
-from .spectrum import _long_stretch, _periodogram, _poly_fit, _spans as _spans_of, _spectral_search
+from .spectrum import _long_stretch, _periodogram, _poly_fit, _refine_period, _spans as _spans_of, _spectral_search
 
 
 # ---------------------------------------------------------------------------------------------
@@ -420,9 +420,16 @@ def _candidates(
         okv = (np.diff(lg.gid) == 0) & (dtt > 0)
         speed_med = float(np.median(dth[okv] / dtt[okv])) if okv.any() else None
     angle_window = search.get("axes", {}).get("angle", {}).get("window_deg")
+    def refined(axis: str, period: float) -> float:
+        key = ("refined", axis, period)
+        if key not in eng.memo:
+            window = search.get("axes", {}).get(axis, {}).get("window_deg" if axis == "angle" else "window_s")
+            eng.memo[key] = _refine_period(lg, axis, period, window, s.n_tight) if lg is not None and window else period
+        return float(eng.memo[key])
+
     for pk in search.get("peaks", []):
         if pk["domain"] == "angle" and abs(pk["period_deg"] - 360.0) > 36.0 and sum(a == "angle" for a, _ in wanted) < 3:
-            wanted.append(("angle", pk["period_deg"]))
+            wanted.append(("angle", refined("angle", pk["period_deg"])))
     for pk in search.get("peaks", []):
         if pk["domain"] != "time" or sum(a == "time" for a, _ in wanted) >= 2:
             continue
@@ -431,7 +438,7 @@ def _candidates(
             f_ang = 1.0 / (pk["period_s"] * speed_med)
             if any(a == "angle" and abs(f_ang - 1.0 / q) < 2.0 / angle_window for a, q in wanted):
                 continue
-        wanted.append(("time", pk["period_s"]))
+        wanted.append(("time", refined("time", pk["period_s"])))
     for axis, period in list(model_periods):
         if all(not (a == axis and abs(period - q) <= 1e-9 * period) for a, q in wanted):
             wanted.append((axis, period))
@@ -449,7 +456,7 @@ def _candidates(
             continue
         unit = "deg" if axis == "angle" else "s"
         base = "runout" if (axis == "angle" and period == 360.0) else "periodic_disturbance"
-        peak_info = next((q for q in search.get("peaks", []) if q["domain"] == axis and abs(q[f"period_{unit}"] - period) <= 1e-9 * period), None)
+        peak_info = next((q for q in search.get("peaks", []) if q["domain"] == axis and abs(refined(axis, q[f"period_{unit}"]) - period) <= 1e-9 * period), None)
         for form in ("additive", "multiplicative"):
             memo_key = ("period", axis, period, form)
             sel = usable[lg.gid]

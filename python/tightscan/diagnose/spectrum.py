@@ -262,7 +262,7 @@ def _find_peaks(sp: dict[str, Any], dom: _Domain, lg: _Long, tests: int, alpha: 
     tab = _peak_table(sp["freq"], sp["P"], sp["Q"], sp["raw"], sp["segments"], sp["overlap"], sp["lo_bin"], sp["hi_bin"])
     P, freq = sp["P"], sp["freq"]
     ref = float(np.nanmedian(lg.ref)) if lg.ref is not None and np.any(np.isfinite(lg.ref)) else float("nan")
-    peaks = []
+    peaks: list[dict[str, Any]] = []
     for i in range(sp["lo_bin"], sp["hi_bin"]):
         if not (P[i] >= P[i - 1] and P[i] >= P[i + 1]):
             continue
@@ -295,6 +295,41 @@ def _find_peaks(sp: dict[str, Any], dom: _Domain, lg: _Long, tests: int, alpha: 
         if all(abs(q["frequency"] - k["frequency"]) * dom.window > 4.0 for k in kept):
             kept.append(q)
     return kept, tab
+
+
+def _refine_period(lg: _Long, axis: str, period: float, window: float, n_tight: int) -> float:
+    """The period of a spectral peak refined to well within a bin: the frequency (within a bin
+    either side) whose sine and cosine per tightening, fitted with the drift over the whole long
+    stretch, leave the least residual (a parabola through the best of nine trial frequencies)."""
+    u = _axis(lg, axis)
+    if u is None or lg.y is None:
+        return period
+    spans = lg.span if axis == "angle" else _spans(lg.gid, u, n_tight)
+    sel = (spans >= period)[lg.gid]
+    if sel.sum() < 100:
+        return period
+    gid, th, y, uu = lg.gid[sel], lg.theta[sel], lg.y[sel], u[sel]
+    f0, df = 1.0 / period, 1.0 / window
+
+    def rss(f: float) -> float:
+        ph = 2 * math.pi * f * uu
+        fitted = _poly_fit(gid, th, y, n_tight, [np.sin(ph), np.cos(ph)])[0]
+        return float(np.sum((y - fitted) ** 2))
+
+    fs = f0 + df * np.linspace(-1.0, 1.0, 9)
+    fs = fs[fs > 0]
+    vals = np.array([rss(float(f)) for f in fs])
+    k = int(np.argmin(vals))
+    if 0 < k < len(fs) - 1:
+        a, b, c = vals[k - 1], vals[k], vals[k + 1]
+        den = a - 2 * b + c
+        step = fs[1] - fs[0]
+        f_best = float(fs[k] + (0.5 * (a - c) / den * step if den > 0 else 0.0))
+        if rss(f_best) > b:
+            f_best = float(fs[k])
+    else:
+        f_best = float(fs[k])
+    return 1.0 / f_best
 
 
 def _lsd(a: F64, b: F64) -> float:

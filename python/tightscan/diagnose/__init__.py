@@ -533,10 +533,10 @@ def _spectrum_details(before: dict[str, Any], after: dict[str, Any], model: dict
         left = removed and any(q["domain"] == d and abs(q["frequency"] - f) <= 2.0 / _window(after, d) for d, f in after_keys)
         explained = None
         if removed and not left:
-            unit = "deg" if q["domain"] == "angle" else "s"
+            # the term at the peak's period on its axis, else the periodic terms whose removal
+            # took it away (its image on the other axis, a leakage)
             same = [name for name, pp in terms if pp is not None and pp[0] == q["domain"] and abs(1.0 / pp[1] - q["frequency"]) <= 2.0 / _window(before, q["domain"])]
             explained = same[0] if same else ", ".join(sorted({name for name, _ in terms}))
-            del unit
         peaks.append(clean(q) | {"explained_by": explained})
     unexplained = [clean(q) for q in after.get("peaks", [])]
     out: dict[str, Any] = {

@@ -457,7 +457,9 @@ def _candidates(
         unit = "deg" if axis == "angle" else "s"
         base = "runout" if (axis == "angle" and period == 360.0) else "periodic_disturbance"
         peak_info = next((q for q in search.get("peaks", []) if q["domain"] == axis and abs(refined(axis, q[f"period_{unit}"]) - period) <= 1e-9 * period), None)
-        for form in ("additive", "multiplicative"):
+        # (a modulation of the transducer's gain follows its rotation: on the time axis only the
+        # additive form)
+        for form in ("additive", "multiplicative") if axis == "angle" else ("additive",):
             memo_key = ("period", axis, period, form)
             sel = usable[lg.gid]
             if memo_key not in eng.memo:

@@ -160,7 +160,7 @@ def _choose_domain(lg: _Long, domain: str, n_tight: int) -> _Domain | None:
     return _Domain(domain, "deg" if domain == "angle" else "s", window, window / n_grid, n_grid, spacing, np.zeros(0, dtype=np.int64))
 
 
-def _segments(lg: _Long, dom: _Domain, r: F64, cap: int = 6000) -> tuple[F64, I64]:
+def _segments(lg: _Long, dom: _Domain, r: F64, cap: int = 2000) -> tuple[F64, I64]:
     """Each tightening's stretch resampled on a uniform grid of ``dom.step`` and cut into
     windows of ``dom.n_grid`` points with half overlap, aligned to the end of the stretch."""
     u = _axis(lg, dom.name)

@@ -336,7 +336,8 @@ def _refine_period(lg: _Long, axis: str, period: float, window: float, n_tight: 
     fs = fs[fs > 0]
     vals = np.array([taken_up(float(f)) for f in fs])
     k = int(np.argmax(vals))
-    f_best = float(fs[k])
+    # no maximum inside the bin either side (a broad or weak peak): the peak's own centroid
+    f_best = float(fs[k]) if 0 < k < len(fs) - 1 else f0
     if 0 < k < len(fs) - 1:
         lo, mid, hi = vals[k - 1], vals[k], vals[k + 1]
         den = lo - 2 * mid + hi

@@ -466,17 +466,26 @@ def _candidates(
                 ph_l = 2 * math.pi * u_long[sel] / period
                 lev = lg.level[lg.gid[sel]] if form == "multiplicative" else 1.0
                 eng.memo[memo_key] = _poly_fit(lg.gid[sel], lg.theta[sel], s.long_y[sel], s.n_tight, [lev * np.sin(ph_l), lev * np.cos(ph_l)])
-            _, coef, var = eng.memo[memo_key]
-            c1 = np.nan_to_num(coef[:, 3])
-            c2 = np.nan_to_num(coef[:, 4])
-            v1, v2 = var[:, 3], var[:, 4]
-            ph = 2 * math.pi * u_model / period
-            wave = c1[gid] * np.sin(ph) + c2[gid] * np.cos(ph)
+            wave_key = ("wave", axis, period, form)
+            if wave_key not in eng.memo:
+                # the prediction into the model's samples and the pooled amplitude depend on the
+                # long stretch only: built once
+                _, coef, var = eng.memo[memo_key]
+                c1 = np.nan_to_num(coef[:, 3])
+                c2 = np.nan_to_num(coef[:, 4])
+                v1, v2 = var[:, 3], var[:, 4]
+                ph = 2 * math.pi * u_model / period
+                ok_ = usable & np.isfinite(v1 + v2) & (v1 + v2 > 0)
+                amp_ = np.sqrt(c1**2 + c2**2)
+                eng.memo[wave_key] = (
+                    c1[gid] * np.sin(ph) + c2[gid] * np.cos(ph),
+                    ok_,
+                    amp_,
+                    _pooled_amplitude(amp_[ok_], (v1 + v2)[ok_], None if form == "multiplicative" else ref_t[ok_]),
+                    float(np.median(amp_[ok_] / np.sqrt((v1[ok_] + v2[ok_]) / 2))) if ok_.any() else float("nan"),
+                )
+            wave, ok, amp, pooled, snr = eng.memo[wave_key]
             z = th * wave if form == "multiplicative" else wave
-            ok = usable & np.isfinite(v1 + v2) & (v1 + v2 > 0)
-            amp = np.sqrt(c1**2 + c2**2)
-            pooled = _pooled_amplitude(amp[ok], (v1 + v2)[ok], None if form == "multiplicative" else ref_t[ok])
-            snr = float(np.median(amp[ok] / np.sqrt((v1[ok] + v2[ok]) / 2))) if ok.any() else float("nan")
             if form == "multiplicative":
                 r2 = pooled["r2_weighted"]
                 r_hat = math.sqrt(max(r2, 0.0))

@@ -18,6 +18,7 @@ modulation found in a rundown where the torque is about zero, and the periodogra
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -76,6 +77,8 @@ def test_ripple_is_named_with_its_period_and_amplitude(order: int, strategy: str
         assert angle_peaks[0]["explained_by"] == expected
         assert angle_peaks[0]["amplitude_fraction_of_reference"] == pytest.approx(_true_fraction(truth), rel=0.3)
     assert all(v is None or v > 1.0 for v in sp["log_spectral_distance_db"].values())
+    # the JSON document carries it (strict JSON: no NaN)
+    assert json.loads(d.to_json())["spectrum"]["unexplained_peaks"] == []
 
 
 def test_clean_set_claims_no_periodic_effect_and_no_structure() -> None:

@@ -127,3 +127,18 @@ def test_a_periodicity_no_candidate_explains_is_reported_with_its_period() -> No
     assert left and left[0]["domain"] == "angle"
     assert left[0]["period_deg"] == pytest.approx(50.0, rel=0.02)
     assert left[0]["p_value"] < 1e-6
+
+
+def test_a_ripple_of_the_transducer_gain_is_named_runout_in_its_multiplicative_form() -> None:
+    # the generator's "gauge" ripple: the transducer's sensitivity varies with its rotation,
+    # T (1 + r sin(phi + p_j)), r 2-3 %
+    eff = ig.TorqueRipple(form="gauge", orders=(1,), amplitude_rel=(0.02, 0.03))
+    curves, truth = ig.generate(ig.GeneratorConfig(n=N, seed=1, strategy="HDT", clamp_force=True, effects=(eff,)))
+    d = tightscan.diagnose(_hidden(curves))
+    eff1 = _level1(d)
+    assert [e.name for e in eff1] == ["runout"]
+    p = eff1[0].parameters
+    assert p["form"] == "multiplicative"
+    true_r = float(np.mean(np.array(truth.column("ripple1_amplitude").to_pylist(), dtype=float)))
+    assert p["amplitude"]["value"] == pytest.approx(true_r, rel=0.15)
+    assert not d.unexplained_structure

@@ -54,7 +54,7 @@ from .prepare import _as_table, _prepare, F64
 from .fit import _Engine, _Fit, _folds, _one_sided_tests, _Term
 from .candidates import _candidates
 from .identify import _collinearity, _gain_test, _identify
-from .spectrum import _whiteness
+from .spectrum import _long_stretch, _spectral_search, _whiteness
 from .select import _grouped_median, _hints, _level2, _level2_inputs, _model_string, _partial_corr, _partial_residual, _quantiles
 from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
@@ -78,7 +78,7 @@ def diagnose(
     whiteness_tolerance: float = 0.05,
     min_samples: int = 10,
     parsimony: float = 0.8,
-    periodic_span_deg: float = 720.0,
+    periodic_span_deg: float | None = None,
     seed: int = 0,
     reach: float = 0.3,
     collinear: float = 0.5,
@@ -103,7 +103,7 @@ def diagnose(
     ``spec_columns``: columns whose cells form the level-2 baseline (``"auto"``: thread, target
     torque, program ... when present). ``rundown_deg``: length of the rundown stretch (default:
     the elastic window's angle span). ``periodic_span_deg``: how much rundown before that
-    stretch is searched for periodicities (run-out). ``whiteness_tolerance``: largest share of
+    stretch is searched for periodicities (run-out; ``None``: all of it, many revolutions long). ``whiteness_tolerance``: largest share of
     the final residual variance a pooled AR(10) may predict before ``unexplained_structure``
     is set. ``parsimony``: a term with per-tightening coefficients is added before a global one
     only if the global one's gain is below this fraction of its gain. ``min_samples``: fewest
@@ -147,6 +147,9 @@ def diagnose(
     fold_t, group_cols = _folds(table, s.rows, folds, group_by, seed)
     eng = _Engine(s, fold_t, folds)
     g = eng.g
+    # the spectral search of the long rundown stretch (angle and time): its peaks are candidates
+    eng.memo["long"] = _long_stretch(s)
+    eng.memo["spectrum"] = _spectral_search(eng.memo["long"], s.n_tight, alpha, min_gain)
     el = (s.seg == 0).astype(np.float64)
     rd = (s.seg == 1).astype(np.float64)
     # declared per-tightening columns: elastic intercept and slope, rundown level
@@ -211,7 +214,7 @@ def diagnose(
     build = 0
     for round_no in range(max_effects + 1):
         build += 1
-        periods = [t.info["period_deg"] for t in model.values() if "period_deg" in t.info]
+        periods = _model_periods(model)
         terms, pinfo = _candidates(s, eng, current, declared, build, periods, _hints(model, current, current_idx))
         if round_no == 0:
             periodogram_info = pinfo
@@ -220,7 +223,11 @@ def diagnose(
         # a further form of an effect already in the model is not a new effect (periodic
         # disturbances at other periods are)
         in_model = {t.name for t in model.values() if t.name != "periodic_disturbance"}
-        cands_all = [t for key, t in terms.items() if key not in model and t.name not in tied_out | misfit_out and t.name not in in_model]
+        cands_all = [
+            t
+            for key, t in terms.items()
+            if key not in model and t.name not in tied_out | misfit_out and t.name not in in_model and _period_of(t) not in periods
+        ]
         tried: list[dict[str, Any]] = []
         significant_terms: list[tuple[float, _Term, _Fit, dict[str, Any]]] = []
         m = max(len(cands_all), 1)
@@ -313,7 +320,7 @@ def diagnose(
                 if "tau_s" not in hint:
                     break
                 build += 1
-                fresh_all, _i = _candidates(s, eng, current, declared, build, [t.info["period_deg"] for t in model.values() if "period_deg" in t.info], hint)
+                fresh_all, _i = _candidates(s, eng, current, declared, build, _model_periods(model), hint)
                 fresh_lag = fresh_all.get(refined.key)
                 if fresh_lag is None:
                     break
@@ -369,7 +376,7 @@ def diagnose(
             build += 1
             idx_now = assemble(model)[4]
             hints_before = _hints(model, fit, idx_now)
-            fresh, _info = _candidates(s, eng, fit, declared, build, [t.info["period_deg"] for t in model.values() if "period_deg" in t.info], hints_before)
+            fresh, _info = _candidates(s, eng, fit, declared, build, _model_periods(model), hints_before)
             trial = {key: fresh.get(key, t) for key, t in model.items()}
             rmse_old = fit.rmse
             fit_try, idx_try = evaluate_with(trial, None)
@@ -433,7 +440,13 @@ def diagnose(
     for eff, key in zip(effects, list(model)):
         eff.parameters = model[key].parameters(final, current_idx[key])
     white = _whiteness(s, final.resid)
-    unexplained = bool(white["ar_r2"] > whiteness_tolerance or leftover_significant)
+    # the spectral search again with the model's periodic terms taken out of the long stretch:
+    # a significant peak left is a periodicity that no candidate explains
+    spec_before = eng.memo["spectrum"]
+    model_periods = _model_periods(model)
+    spec_after = _spectral_search(eng.memo["long"], s.n_tight, alpha, min_gain, remove=model_periods, before=spec_before) if model_periods else spec_before
+    spectrum = _spectrum_details(spec_before, spec_after, model, bool(model_periods))
+    unexplained = bool(white["ar_r2"] > whiteness_tolerance or leftover_significant or spectrum["unexplained_peaks"])
 
     # level 2
     level2, l2_details, l2_plots = _level2(table, s, final, fold_t, folds, alpha, min_gain, covariates, spec_columns, group_cols, x_scale_t)
@@ -505,6 +518,7 @@ def diagnose(
         "ties": ties,
         "form_misfit": misfits,
         "periodogram": periodogram_info,
+        "spectrum": spectrum,
         "rounds": rounds,
         "level2": l2_details,
         "grouping_factors": group_details,
@@ -537,6 +551,63 @@ def diagnose(
         per_tightening=per_t,
         plot_data=plot,
     )
+
+
+def _period_of(t: _Term) -> tuple[str, float] | None:
+    axis = t.info.get("axis")
+    if axis is None:
+        return None
+    return (str(axis), float(t.info["period_deg" if axis == "angle" else "period_s"]))
+
+
+def _model_periods(model: dict[str, _Term]) -> list[tuple[str, float]]:
+    """(axis, period) of the model's periodic terms."""
+    return [p for p in (_period_of(t) for t in model.values()) if p is not None]
+
+
+def _spectrum_details(before: dict[str, Any], after: dict[str, Any], model: dict[str, _Term], removed: bool) -> dict[str, Any]:
+    """``details["spectrum"]``: the peaks of the spectral search before the loop, which effect
+    explains each (a periodic term of the model at its period, or its image at the median speed
+    on the other axis: the peak is gone once the model's periodic terms are taken out), the peaks
+    left after that, and the log-spectral distances."""
+    after_keys = {(q["domain"], round(q["frequency"], 12)) for q in after.get("peaks", [])}
+    terms = [(t.name, _period_of(t)) for t in model.values() if _period_of(t) is not None]
+
+    def clean(q: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in q.items() if not k.startswith("_")}
+
+    peaks = []
+    for q in before.get("peaks", []):
+        left = removed and any(q["domain"] == d and abs(q["frequency"] - f) <= 2.0 / _window(after, d) for d, f in after_keys)
+        explained = None
+        if removed and not left:
+            # the term at the peak's period on its axis, else the periodic terms whose removal
+            # took it away (its image on the other axis, a leakage)
+            same = [name for name, pp in terms if pp is not None and pp[0] == q["domain"] and abs(1.0 / pp[1] - q["frequency"]) <= 2.0 / _window(before, q["domain"])]
+            explained = same[0] if same else ", ".join(sorted({name for name, _ in terms}))
+        peaks.append(clean(q) | {"explained_by": explained})
+    unexplained = [clean(q) for q in after.get("peaks", [])]
+    out: dict[str, Any] = {
+        "method": before.get("stretch"),
+        "alpha": before.get("alpha"),
+        "min_power_share": before.get("min_power_share"),
+        "bins_searched": before.get("bins_searched"),
+        "axes": before.get("axes", {}),
+        "peaks": peaks,
+        "unexplained_peaks": unexplained,
+        "model_periods": [{"axis": a, "period": p} for a, p in _model_periods(model)],
+        "axes_after": after.get("axes", {}) if removed else None,
+        "log_spectral_distance_db": {k: v.get("log_spectral_distance_db") for k, v in after.get("axes", {}).items()} if removed else {k: 0.0 for k in before.get("axes", {})},
+    }
+    if "note" in before:
+        out["note"] = before["note"]
+    return out
+
+
+def _window(search: dict[str, Any], domain: str) -> float:
+    ax = search.get("axes", {}).get(domain, {})
+    w = ax.get("window_deg" if domain == "angle" else "window_s")
+    return float(w) if w else float("inf")
 
 
 def _no_parameters(fit: _Fit, idx: list[int]) -> dict[str, Any]:

@@ -12,7 +12,7 @@ import numpy.typing as npt
 from .result import EFFECT_NAMES
 from .prepare import _Groups, _Samples, B8, F64
 from .fit import _Engine, _Fit, _Term
-from .spectrum import _long_stretch, _periodogram, _poly_fit
+from .spectrum import _long_stretch, _periodogram, _poly_fit, _refine_period, _spans as _spans_of, _spectral_search
 
 
 # ---------------------------------------------------------------------------------------------
@@ -177,7 +177,7 @@ def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float, decay:
 
 
 def _candidates(
-    s: _Samples, eng: _Engine, fit: _Fit, declared: list[F64], tag: int, model_periods: Sequence[float], hints: dict[str, float]
+    s: _Samples, eng: _Engine, fit: _Fit, declared: list[F64], tag: int, model_periods: Sequence[tuple[str, float]], hints: dict[str, float]
 ) -> tuple[dict[str, _Term], dict[str, Any]]:
     """Every candidate term, its regressors built from the fit (fitted torque, slopes) and the
     channels other than the measured torque; keyed by a stable key."""
@@ -399,71 +399,143 @@ def _candidates(
                 return out
 
             glob("program_step", cols, labels, p_step)
-    # periodicities: once per revolution always, other periods from the averaged periodogram of
-    # the long rundown stretch. Each tightening's modulation (amplitude and phase) is estimated on
-    # that stretch and predicted into the samples of the model, which it has not seen.
+    # periodicities: once per revolution always, other periods from the spectral search of the
+    # long rundown stretch against the angle and against time. Each tightening's modulation
+    # (its own phase: a sine and a cosine per tightening) is estimated on that stretch and
+    # predicted into the samples of the model, which it has not seen; one global coefficient
+    # (kappa, about 1) scales the prediction, so the term goes through the same K-fold gain test
+    # across tightenings as every other. Two forms: additive (an eccentric socket or spindle, a
+    # drag of its own in Nm) and multiplicative (the transducer's sensitivity, T (1 + r sin)).
     if "long" not in eng.memo:
         eng.memo["long"] = _long_stretch(s)
-        eng.memo["periodogram"] = _periodogram(eng.memo["long"], s.n_tight)
+    if "spectrum" not in eng.memo:
+        eng.memo["spectrum"] = _spectral_search(eng.memo["long"], s.n_tight)
     lg = eng.memo["long"]
-    pinfo = dict(eng.memo["periodogram"])
-    periods = [360.0] + [p["period_deg"] for p in pinfo.get("peaks", []) if abs(p["period_deg"] - 360.0) > 36.0][:2]
-    for period in list(model_periods):
-        if all(abs(period - q) > 1e-9 for q in periods):
-            periods.append(period)
-    for period in periods:
+    search = eng.memo["spectrum"]
+    pinfo = _periodogram(lg, s.n_tight, search=search)
+    wanted: list[tuple[str, float]] = [("angle", 360.0)]
+    speed_med = None
+    if lg is not None and lg.t is not None:
+        dth, dtt = np.diff(lg.theta), np.diff(lg.t)
+        okv = (np.diff(lg.gid) == 0) & (dtt > 0)
+        speed_med = float(np.median(dth[okv] / dtt[okv])) if okv.any() else None
+    angle_window = search.get("axes", {}).get("angle", {}).get("window_deg")
+    def refined(axis: str, period: float) -> float:
+        key = ("refined", axis, period)
+        if key not in eng.memo:
+            window = search.get("axes", {}).get(axis, {}).get("window_deg" if axis == "angle" else "window_s")
+            eng.memo[key] = _refine_period(lg, axis, period, window, s.n_tight) if lg is not None and window else period
+        return float(eng.memo[key])
+
+    for pk in search.get("peaks", []):
+        if pk["domain"] == "angle" and abs(pk["period_deg"] - 360.0) > 36.0 and sum(a == "angle" for a, _ in wanted) < 3:
+            wanted.append(("angle", refined("angle", pk["period_deg"])))
+    for pk in search.get("peaks", []):
+        if pk["domain"] != "time" or sum(a == "time" for a, _ in wanted) >= 2:
+            continue
+        # the image of a periodicity over the angle at the median speed is not a new candidate
+        if speed_med and angle_window:
+            f_ang = 1.0 / (pk["period_s"] * speed_med)
+            if any(a == "angle" and abs(f_ang - 1.0 / q) < 2.0 / angle_window for a, q in wanted):
+                continue
+        wanted.append(("time", refined("time", pk["period_s"])))
+    for axis, period in list(model_periods):
+        if all(not (a == axis and abs(period - q) <= 1e-9 * period) for a, q in wanted):
+            wanted.append((axis, period))
+    ref_t = lg.ref if lg is not None and lg.ref is not None else s.scale
+    for axis, period in wanted:
         if lg is None:
             break
-        usable = (lg.span >= 0.5 * period) & (lg.count >= 30)
+        u_long = lg.theta if axis == "angle" else lg.t
+        u_model = s.theta if axis == "angle" else s.t
+        if u_long is None or u_model is None:
+            continue
+        span_u = lg.span if axis == "angle" else _spans_of(lg.gid, u_long, s.n_tight)
+        usable = (span_u >= period) & (lg.count >= 30)
         if usable.sum() < max(10, 0.05 * s.n_tight):
             continue
-        name = "runout" if period == 360.0 else "periodic_disturbance"
-        key = name if period == 360.0 else f"{name}:{period:.6g}"
-        memo_key = ("period", period)
-        if memo_key not in eng.memo:
+        unit = "deg" if axis == "angle" else "s"
+        base = "runout" if (axis == "angle" and period == 360.0) else "periodic_disturbance"
+        peak_info = next((q for q in search.get("peaks", []) if q["domain"] == axis and abs(refined(axis, q[f"period_{unit}"]) - period) <= 1e-9 * period), None)
+        # (a modulation of the transducer's gain follows its rotation: on the time axis only the
+        # additive form)
+        for form in ("additive", "multiplicative") if axis == "angle" else ("additive",):
+            memo_key = ("period", axis, period, form)
             sel = usable[lg.gid]
-            ph_l = 2 * math.pi * lg.theta[sel] / period
-            lev = lg.level[lg.gid[sel]]
-            eng.memo[memo_key] = _poly_fit(lg.gid[sel], lg.theta[sel], s.long_y[sel], s.n_tight, [lev * np.sin(ph_l), lev * np.cos(ph_l)])
-        _, coef, var = eng.memo[memo_key]
-        c1 = np.nan_to_num(coef[:, 3])
-        c2 = np.nan_to_num(coef[:, 4])
-        v1, v2 = var[:, 3], var[:, 4]
-        ph = 2 * math.pi * s.theta / period
-        z = th * (c1[gid] * np.sin(ph) + c2[gid] * np.cos(ph))
-        ok = usable & np.isfinite(v1 + v2) & (v1 + v2 > 0)
-        amp = np.sqrt(c1**2 + c2**2)
-        w = np.zeros(s.n_tight)
-        w[ok] = 1.0 / (v1[ok] + v2[ok]) ** 2
-        r2 = float(np.sum(w[ok] * (amp[ok] ** 2 - v1[ok] - v2[ok])) / np.sum(w[ok])) if ok.any() else float("nan")
-        r2_se = float(np.sqrt(np.sum(w[ok] ** 2 * (2 * (v1[ok] + v2[ok]) ** 2 + 2 * amp[ok] ** 2 * (v1[ok] + v2[ok])))) / np.sum(w[ok])) if ok.any() else float("nan")
-        r_hat = math.sqrt(max(r2, 0.0))
-        snr = float(np.median(amp[ok] / np.sqrt((v1[ok] + v2[ok]) / 2))) if ok.any() else float("nan")
+            if memo_key not in eng.memo:
+                ph_l = 2 * math.pi * u_long[sel] / period
+                lev = lg.level[lg.gid[sel]] if form == "multiplicative" else 1.0
+                eng.memo[memo_key] = _poly_fit(lg.gid[sel], lg.theta[sel], s.long_y[sel], s.n_tight, [lev * np.sin(ph_l), lev * np.cos(ph_l)])
+            wave_key = ("wave", axis, period, form)
+            if wave_key not in eng.memo:
+                # the prediction into the model's samples and the pooled amplitude depend on the
+                # long stretch only: built once
+                _, coef, var = eng.memo[memo_key]
+                c1 = np.nan_to_num(coef[:, 3])
+                c2 = np.nan_to_num(coef[:, 4])
+                v1, v2 = var[:, 3], var[:, 4]
+                ph = 2 * math.pi * u_model / period
+                ok_ = usable & np.isfinite(v1 + v2) & (v1 + v2 > 0)
+                amp_ = np.sqrt(c1**2 + c2**2)
+                eng.memo[wave_key] = (
+                    c1[gid] * np.sin(ph) + c2[gid] * np.cos(ph),
+                    ok_,
+                    amp_,
+                    _pooled_amplitude(amp_[ok_], (v1 + v2)[ok_], None if form == "multiplicative" else ref_t[ok_]),
+                    float(np.median(amp_[ok_] / np.sqrt((v1[ok_] + v2[ok_]) / 2))) if ok_.any() else float("nan"),
+                )
+            wave, ok, amp, pooled, snr = eng.memo[wave_key]
+            z = th * wave if form == "multiplicative" else wave
+            if form == "multiplicative":
+                r2 = pooled["r2_weighted"]
+                r_hat = math.sqrt(max(r2, 0.0))
+                r2_se = pooled["r2_weighted_se"]
+                amplitude = {"value": r_hat, "se": r2_se / (2 * r_hat) if r_hat > 0 else float("nan"), "unit": "relative to the torque"}
+                law = f"T (1 + r sin(2 pi {'theta' if axis == 'angle' else 't'} / period + phi_j)), phase phi_j per tightening"
+            else:
+                amplitude = {"value": pooled["relative"], "se": pooled["relative_se"], "unit": "fraction of the target torque (of the peak torque where the table has no target)"}
+                law = f"T + A_j sin(2 pi {'theta' if axis == 'angle' else 't'} / period + phi_j), amplitude A_j and phase phi_j per tightening"
 
-        def p_per(f2: _Fit, idx: list[int], period: float = period, r_hat: float = r_hat, r2_se: float = r2_se, n_ok: int = int(ok.sum()), med_amp: float = float(np.median(amp[ok])) if ok.any() else float("nan")) -> dict[str, Any]:
-            return {
-                "period_deg": period,
-                "amplitude": {"value": r_hat, "se": r2_se / (2 * r_hat) if r_hat > 0 else float("nan")},
-                "kappa": {"value": float(f2.beta[idx[0]]), "se": float(f2.se[idx[0]])},
-                "amplitude_median_per_tightening": med_amp,
-                "tightenings_with_a_long_rundown": n_ok,
-                "law": "T (1 + r sin(2 pi theta / period + phi_j)), phase phi_j per tightening",
-                "note": "r and phi_j from the rundown before the declared stretch; kappa (about 1 when the modulation "
-                "found there is the one in the rest of the curve; below 1 by the noise of the per-tightening estimates) "
-                "scales its prediction into the model's samples",
-            }
+            def p_per(
+                f2: _Fit,
+                idx: list[int],
+                period: float = period,
+                unit: str = unit,
+                amplitude: dict[str, Any] = amplitude,
+                pooled: dict[str, float] = pooled,
+                n_ok: int = int(ok.sum()),
+                med_amp: float = float(np.median(amp[ok])) if ok.any() else float("nan"),
+                law: str = law,
+                form: str = form,
+            ) -> dict[str, Any]:
+                out = {
+                    f"period_{unit}": period,
+                    "amplitude": amplitude,
+                    "kappa": {"value": float(f2.beta[idx[0]]), "se": float(f2.se[idx[0]])},
+                    "amplitude_median_per_tightening": med_amp,
+                    "tightenings_with_a_long_rundown": n_ok,
+                    "form": form,
+                    "pooled_amplitude_z": pooled["z"],
+                    "law": law,
+                    "note": "amplitude pooled over the tightenings (mean of the squared per-tightening amplitude less its "
+                    "estimation variance); A_j and phi_j from the rundown before the declared stretch; kappa (about 1 when the "
+                    "modulation found there is the one in the rest of the curve) scales its prediction into the model's samples",
+                }
+                if form == "additive":
+                    out["amplitude_nm"] = {"value": pooled["nm"], "se": pooled["nm_se"]}
+                return out
 
-        glob(
-            name,
-            [z],
-            ["kappa"],
-            p_per,
-            {"period_deg": period, "median_amplitude_snr_in_rundown": snr},
-            EFFECT_NAMES[name] if name == "runout" else f"periodic modulation of the torque with a period of {period:.1f} deg",
-        )
-        if key != name:
-            cands[key] = cands.pop(name)
-            cands[key].key = key
+            info = {f"period_{unit}": period, "axis": axis, "form": form, "median_amplitude_snr_in_rundown": snr, "pooled_amplitude_z": pooled["z"]}
+            if axis == "angle":
+                info["period_deg"] = period
+            if peak_info is not None:
+                info["spectral_peak"] = {k: peak_info[k] for k in ("power_ratio", "p_value", "amplitude_nm")}
+            if base == "runout":
+                desc = EFFECT_NAMES[base] + ("" if form == "multiplicative" else " (additive: a drag of its own)")
+            else:
+                desc = f"periodic {'modulation of' if form == 'multiplicative' else 'disturbance on'} the torque with a period of {period:.4g} {unit}" + (" in time" if axis == "time" else "")
+            key = base if (base == "runout" and form == "multiplicative") else f"{base}:{axis}:{period:.6g}:{form}" if base != "runout" else f"{base}:{form}"
+            glob(base, [z], ["kappa"], p_per, info, desc, key=key)
     tau_lp = hints.get("tau_s", 0.0)
     if tau_lp > 0:
         # the recorded torque is the transducer's low-pass of everything: so are the regressors
@@ -477,6 +549,33 @@ def _candidates(
                 i += len(t.columns)
                 t.info["filtered_by_channel_low_pass_ms"] = 1000 * tau_lp
     return cands, pinfo
+
+
+def _pooled_amplitude(amp: F64, var: F64, ref: F64 | None) -> dict[str, float]:
+    """Pooled amplitude evidence of a per-tightening sine and cosine pair: with a_j^2 = c1^2 + c2^2
+    and v_j = var(c1) + var(c2), E[a_j^2] = A_j^2 + v_j, so mean(a_j^2 - v_j) estimates the mean
+    square amplitude (its root: the amplitude); under no modulation a_j^2 / (v_j / 2) is chi2_2,
+    and z compares its mean over the tightenings with 2."""
+    n = len(amp)
+    nan = float("nan")
+    if n == 0:
+        return {"z": nan, "nm": nan, "nm_se": nan, "relative": nan, "relative_se": nan, "r2_weighted": nan, "r2_weighted_se": nan}
+    a2 = amp * amp
+    q = a2 / np.maximum(var / 2, 1e-300)
+    z = float((np.mean(q) - 2.0) / (2.0 / math.sqrt(n)))
+
+    def root_mean(x2: F64, v: F64) -> tuple[float, float]:
+        m = float(np.mean(x2 - v))
+        se = float(np.std(x2, ddof=1) / math.sqrt(n)) if n > 1 else nan
+        r = math.sqrt(max(m, 0.0))
+        return r, (se / (2 * r) if r > 0 else nan)
+
+    nm, nm_se = root_mean(a2, var)
+    rel, rel_se = root_mean(a2 / ref**2, var / ref**2) if ref is not None else (nan, nan)
+    w = 1.0 / var**2
+    r2w = float(np.sum(w * (a2 - var)) / np.sum(w))
+    r2w_se = float(np.sqrt(np.sum(w**2 * (2 * var**2 + 2 * a2 * var))) / np.sum(w))
+    return {"z": z, "nm": nm, "nm_se": nm_se, "relative": rel, "relative_se": rel_se, "r2_weighted": r2w, "r2_weighted_se": r2w_se}
 
 
 def _lag_xcorr(s: _Samples, resid: F64, th: F64, el: B8, max_lag: int = 12) -> dict[str, Any]:

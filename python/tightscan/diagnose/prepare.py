@@ -204,6 +204,8 @@ class _Samples:
     long_gid: I64  # long rundown stretch before the declared one (periodicities): tightening
     long_theta: F64
     long_y: F64
+    long_t: F64 | None  # time within the tightening [s] of the long stretch (None without a time channel)
+    target: F64  # per tightening: target torque [Nm] from the table (NaN where it has none)
 
 
 def _window_sums(v: F64, lo: I64, hi: I64) -> F64:
@@ -256,7 +258,7 @@ def _speed_channel(speed: F64, clock: F64, pos: I64, start: I64, end: I64, k: in
     return 6.0 * (level + cj), (slope + step_rate) * rpm_to_rad
 
 
-def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_deg: float) -> _Samples:
+def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_deg: float | None) -> _Samples:
     from .._api import detect_batch
 
     n_rows = table.num_rows
@@ -386,7 +388,9 @@ def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_
     rundown &= (n_rd >= min_samples)[gid]
     use = (elastic | rundown) & keep_t[gid]
     # the long stretch before the declared rundown, where a periodicity over the angle can show
-    long_mask = (a >= (r_start - long_deg)[gid]) & (a < r_start[gid]) & before_peak & ~stop & keep_t[gid]
+    # (``long_deg`` None: all of the rundown before it, the whole run-down many revolutions long)
+    long_lo = r_start - (np.inf if long_deg is None else long_deg)
+    long_mask = (a >= long_lo[gid]) & (a < r_start[gid]) & before_peak & ~stop & keep_t[gid]
 
     # per-tightening references on the full curve
     if clamp is not None:
@@ -463,6 +467,9 @@ def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_
     pre_y = np.where(has_pre, mean_y + sl * (clock[ip] - mean_c), np.nan)
     pre_t = np.where(has_pre, clock[ip], np.nan)
     pre_th = np.where(has_pre, theta[ip], np.nan)
+    target = np.full(n_rows, np.nan)
+    if "target_torque" in table.column_names and (pa.types.is_floating(table.schema.field("target_torque").type) or pa.types.is_integer(table.schema.field("target_torque").type)):
+        target = np.array([np.nan if v is None else float(v) for v in table.column("target_torque").to_pylist()], dtype=np.float64)
     ids = table.column("tightening_id").to_pylist() if "tightening_id" in table.column_names else list(range(n_rows))
     rows_final = rows[keep_rows]
     return _Samples(
@@ -504,6 +511,8 @@ def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_
         long_gid=long_g,
         long_theta=theta[long_mask],
         long_y=y[long_mask],
+        long_t=None if tt is None else tt[long_mask],
+        target=target[rows_final],
     )
 
 

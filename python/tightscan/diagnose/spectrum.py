@@ -24,6 +24,9 @@ class _Long:
     level: F64  # per tightening mean torque of the stretch
     span: F64  # per tightening angle span of the stretch
     count: F64
+    t: F64 | None = None  # time within the tightening [s] (None without a time channel)
+    ref: F64 | None = None  # per tightening reference torque: the target, else the peak torque [Nm]
+    y: F64 | None = None  # the measured torque of the stretch
 
 
 def _long_stretch(s: _Samples) -> _Long | None:
@@ -38,7 +41,8 @@ def _long_stretch(s: _Samples) -> _Long | None:
     span = np.where(cnt > 0, hi - lo, 0.0)
     level = np.bincount(s.long_gid, weights=s.long_y, minlength=n) / np.maximum(cnt, 1)
     resid = s.long_y - _poly_fit(s.long_gid, s.long_theta, s.long_y, n, [])[0]
-    return _Long(s.long_gid, s.long_theta, resid, level, span, cnt)
+    ref = np.where(np.isfinite(s.target) & (s.target > 0), s.target, s.scale)
+    return _Long(s.long_gid, s.long_theta, resid, level, span, cnt, s.long_t, ref, s.long_y)
 
 
 def _poly_fit(gid: I64, theta: F64, y: F64, n: int, extra: list[F64]) -> tuple[F64, F64, F64]:
@@ -90,73 +94,361 @@ def _power_spectra(v: F64, grid_step: float) -> tuple[F64, F64]:
     return np.asarray(freq, dtype=np.float64), np.asarray(power, dtype=np.float64)
 
 
-def _periodogram(lg: _Long | None, n_tight: int) -> dict[str, Any]:
-    """Average periodogram of the long-stretch residual against angle (each stretch resampled
-    onto a uniform angle grid, tapered, its power normalised to mean 1, then averaged)."""
-    info: dict[str, Any] = {"window_deg": None, "peaks": [], "stretch": "rundown before the declared stretch, after a quadratic drift per tightening"}
-    if lg is None:
-        info["note"] = "no rundown before the declared stretch: periodicities over the angle cannot be examined"
-        return info
-    window = None
-    for w in (720.0, 360.0, 180.0):
-        if np.sum(lg.span >= w) >= max(20, 0.2 * n_tight):
-            window = w
-            break
+# Welch segments with half overlap and a Hann taper: the correlation of the ordinates of two
+# overlapping segments is rho = 0.167, so K segments carry the information of K / (1 + 2 rho^2)
+_HANN_HALF_OVERLAP = 1.0 / (1.0 + 2.0 * 0.167**2)
+_ANGLE_WINDOWS = (1440.0, 1080.0, 720.0)  # several periods of the longest period sought (360 deg)
+_FIRST_BIN = 3  # the first bins carry the drift left by the detrending and the taper
+_NEIGHBOURS = 10  # background from the bins 2..10 either side (the Hann main lobe is +-2 bins)
+
+
+@dataclass
+class _Domain:
+    """Welch spectra of the long-stretch residual against one axis (angle or time)."""
+
+    name: str  # "angle" | "time"
+    unit: str  # "deg" | "s"
+    window: float
+    step: float
+    n_grid: int
+    spacing: float  # median sample spacing on this axis
+    owners: I64  # tightening of each segment
+
+
+def _axis(lg: _Long, domain: str) -> F64 | None:
+    return lg.theta if domain == "angle" else lg.t
+
+
+def _spans(gid: I64, u: F64, n: int) -> F64:
+    lo = np.full(n, np.inf)
+    hi = np.full(n, -np.inf)
+    np.minimum.at(lo, gid, u)
+    np.maximum.at(hi, gid, u)
+    return np.where(hi > lo, hi - lo, 0.0)
+
+
+def _choose_domain(lg: _Long, domain: str, n_tight: int) -> _Domain | None:
+    """Window of the Welch segments: on the angle, the longest of 4, 3, 2 revolutions that enough
+    tightenings hold (at least 20 and a fifth of them), so that the longest period searched
+    (one revolution) has several periods in a window; on time, the time those revolutions take
+    at the stretch's median speed (or the longest of 1, 3/4, 1/2 of it that enough hold)."""
+    u = _axis(lg, domain)
+    if u is None or len(u) == 0:
+        return None
+    spans = _spans(lg.gid, u, n_tight)
+    need = max(20, 0.2 * n_tight)
+    du = np.diff(u)
+    du = du[(np.diff(lg.gid) == 0) & (du > 0)]
+    if len(du) == 0:
+        return None
+    spacing = float(np.median(du))
+    if domain == "angle":
+        ladder = list(_ANGLE_WINDOWS)
+    else:
+        dth = np.diff(lg.theta)
+        ok = (np.diff(lg.gid) == 0) & (np.diff(u) > 0)
+        speed = float(np.median(dth[ok] / np.diff(u)[ok])) if ok.any() else 0.0
+        if not speed > 0:
+            return None
+        longest = max(_ANGLE_WINDOWS) / speed
+        ladder = [longest, 0.75 * longest, 0.5 * longest, 0.25 * longest]
+    window = next((w for w in ladder if np.sum(spans >= w * 0.999) >= need), None)
     if window is None:
-        info["note"] = "the rundown stretches are too short for a periodogram"
-        return info
-    n_grid = 512
-    grid_step = window / n_grid
-    order = np.argsort(lg.gid, kind="stable")
-    gs, th, rr_all = lg.gid[order], lg.theta[order], lg.resid[order]
+        return None
+    # at least one grid point per sample (no aliasing by the resampling), at most 4096 points
+    n_grid = int(min(4096, max(256, 2 ** math.ceil(math.log2(window / spacing)))))
+    return _Domain(domain, "deg" if domain == "angle" else "s", window, window / n_grid, n_grid, spacing, np.zeros(0, dtype=np.int64))
+
+
+def _segments(lg: _Long, dom: _Domain, r: F64, cap: int = 2000) -> tuple[F64, I64]:
+    """Each tightening's stretch resampled on a uniform grid of ``dom.step`` and cut into
+    windows of ``dom.n_grid`` points with half overlap, aligned to the end of the stretch."""
+    u = _axis(lg, dom.name)
+    assert u is not None
+    order = np.lexsort((u, lg.gid))
+    gs, uu, rr = lg.gid[order], u[order], r[order]
     starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]])
     ends = np.r_[starts[1:], len(gs)]
-    stretches = []
-    for b, e in zip(starts, ends):
-        if lg.span[gs[b]] < window or e - b < 64:
+    hop = dom.n_grid // 2
+    rows: list[F64] = []
+    owners: list[int] = []
+    total = 0
+    # the tightenings in a fixed pseudo-random order, so that a cap keeps a spread of them
+    for k in np.random.default_rng(0).permutation(len(starts)):
+        b, e = starts[k], ends[k]
+        if e - b < 16 or uu[e - 1] - uu[b] < dom.window * 0.999:
             continue
-        t, r = th[b:e], rr_all[b:e]
-        o = np.argsort(t, kind="stable")
-        t, r = t[o], r[o]
-        grid = t[-1] - window + grid_step * np.arange(n_grid)
-        stretches.append(np.interp(grid, t, r))
-        if len(stretches) >= 3000:
+        n_pts = int(math.floor((uu[e - 1] - uu[b]) / dom.step)) + 1
+        if n_pts < dom.n_grid:
+            continue
+        grid = uu[e - 1] - dom.step * np.arange(n_pts)[::-1]
+        v = np.interp(grid, uu[b:e], rr[b:e])
+        n_seg = 1 + max(0, (n_pts - dom.n_grid) // hop)
+        for q in range(n_seg):
+            stop = n_pts - q * hop
+            rows.append(v[stop - dom.n_grid : stop])
+            owners.append(int(gs[b]))
+        total += n_seg
+        if total >= cap:
             break
-    freq, powers = np.zeros(0), np.zeros((0, 0))
-    if stretches:
-        freq, spectra = _power_spectra(np.array(stretches), grid_step)
-        # each stretch normalised to mean power 1 (DC left out): noisy and quiet stretches weigh
-        # alike in the average, and a peak reads as a ratio to the local background
-        tot = spectra[:, 1:].mean(axis=1)
-        powers = spectra[tot > 0] / tot[tot > 0, None]
-    if len(powers) < 20:
-        info["note"] = "too few long rundown stretches for a periodogram"
+    if not rows:
+        return np.zeros((0, dom.n_grid)), np.zeros(0, dtype=np.int64)
+    return np.array(rows), np.array(owners, dtype=np.int64)
+
+
+def _peak_table(freq: F64, P: F64, Q: F64, raw: F64, n_seg: int, overlap: bool, lo_bin: int, hi_bin: int) -> dict[str, F64]:
+    """Per bin of the averaged normalised spectrum ``P`` (mean of the squares ``Q``): its ratio to
+    the background (median of the neighbouring bins), the chi-square p-value of that ratio and the
+    lobe's excess power (share of the total, and in the unit of ``raw`` squared).
+
+    Under no periodicity an ordinate of one segment is its background times chi2_2 / 2, so the
+    mean of ``n_seg`` of them is the background times chi2_nu / nu, nu = 2 n_seg. Segments of
+    unequal spectral shape (noisy and quiet tightenings) make the mean more variable than that:
+    nu is reduced by the ratio of E[p^2] / E[p]^2 (2 for chi2_2) measured on the neighbours, and
+    for the half overlap of the segments."""
+    nb = len(P)
+    bg = np.full(nb, np.nan)
+    c = np.full(nb, np.nan)
+    bg_raw = np.full(nb, np.nan)
+    shape = Q / np.maximum(P * P, 1e-300)
+    for i in range(max(1, lo_bin - 2), min(nb, hi_bin + 3)):
+        idx = np.r_[np.arange(max(1, i - _NEIGHBOURS), max(1, i - 1)), np.arange(min(nb, i + 2), min(nb, i + _NEIGHBOURS + 1))]
+        if len(idx) < 4:
+            continue
+        bg[i] = np.median(P[idx])
+        c[i] = np.median(shape[idx])
+        bg_raw[i] = np.median(raw[idx])
+    nu = 2.0 * n_seg * 2.0 / np.maximum(c, 2.0) * (_HANN_HALF_OVERLAP if overlap else 1.0)
+    ratio = P / np.where(bg > 0, bg, np.nan)
+    p = np.where(np.isfinite(ratio), stats.chi2.sf(nu * np.nan_to_num(ratio), np.nan_to_num(nu, nan=2.0)), 1.0)
+    excess = np.zeros(nb)
+    excess_raw = np.zeros(nb)
+    for i in range(lo_bin, hi_bin):
+        if not np.isfinite(bg[i]):
+            continue
+        lobe = slice(max(1, i - 2), min(nb, i + 3))
+        excess[i] = float(np.sum(P[lobe]) - bg[i] * (lobe.stop - lobe.start))
+        excess_raw[i] = float(np.sum(raw[lobe]) - bg_raw[i] * (lobe.stop - lobe.start))
+    total = float(np.sum(P[1:]))
+    return {"bg": bg, "ratio": ratio, "p": p, "share": excess / max(total, 1e-300), "excess_raw": excess_raw, "nu": nu}
+
+
+def _domain_spectrum(lg: _Long, dom: _Domain, r: F64) -> dict[str, Any] | None:
+    rows, owners = _segments(lg, dom, r)
+    if len(rows) < 20:
+        return None
+    freq, spectra = _power_spectra(rows, dom.step)
+    tot = spectra[:, 1:].mean(axis=1)
+    ok = tot > 0
+    norm = spectra[ok] / tot[ok, None]
+    min_period = max(4.0 * dom.spacing, 4.0 * dom.step)
+    hi_bin = int(min(len(freq) - 2, math.floor(dom.window / min_period)))
+    overlap = len(np.unique(owners)) < len(owners)
+    return {
+        "freq": freq,
+        "P": norm.mean(axis=0),
+        "Q": (norm * norm).mean(axis=0),
+        "raw": spectra[ok].mean(axis=0),
+        "segments": int(ok.sum()),
+        "tightenings": int(len(np.unique(owners[ok]))),
+        "overlap": overlap,
+        "lo_bin": _FIRST_BIN,
+        "hi_bin": max(hi_bin, _FIRST_BIN),
+        "min_period": min_period,
+    }
+
+
+def _find_peaks(sp: dict[str, Any], dom: _Domain, lg: _Long, tests: int, alpha: float, share_min: float) -> tuple[list[dict[str, Any]], dict[str, F64]]:
+    tab = _peak_table(sp["freq"], sp["P"], sp["Q"], sp["raw"], sp["segments"], sp["overlap"], sp["lo_bin"], sp["hi_bin"])
+    P, freq = sp["P"], sp["freq"]
+    ref = float(np.nanmedian(lg.ref)) if lg.ref is not None and np.any(np.isfinite(lg.ref)) else float("nan")
+    peaks: list[dict[str, Any]] = []
+    for i in range(sp["lo_bin"], sp["hi_bin"]):
+        if not (P[i] >= P[i - 1] and P[i] >= P[i + 1]):
+            continue
+        p_adj = min(1.0, float(tab["p"][i]) * tests)
+        if not (p_adj < alpha and tab["share"][i] >= share_min):
+            continue
+        lobe = np.arange(max(1, i - 1), min(len(P), i + 2))
+        w = np.maximum(P[lobe] - tab["bg"][i], 0.0)
+        f_c = float(np.sum(freq[lobe] * w) / np.sum(w)) if np.sum(w) > 0 else float(freq[i])
+        # a sine of amplitude A puts A^2 / 2 times the Hann window's noise bandwidth (1.5 bins)
+        # into its lobe of the 'spectrum'-scaled periodogram
+        amp = math.sqrt(max(2.0 * float(tab["excess_raw"][i]) / 1.5, 0.0))
+        peaks.append(
+            {
+                "domain": dom.name,
+                f"period_{dom.unit}": 1.0 / f_c,
+                "frequency": f_c,
+                "frequency_unit": "cycles per degree" if dom.name == "angle" else "Hz",
+                "power_ratio": float(tab["ratio"][i]),
+                "p_value": p_adj,
+                "power_share": float(tab["share"][i]),
+                "amplitude_nm": amp,
+                "amplitude_fraction_of_reference": amp / ref if ref > 0 else float("nan"),
+            }
+        )
+    peaks.sort(key=lambda q: -q["power_ratio"])
+    # a peak within the lobes of a stronger one (4 bins) is its leakage, not a periodicity
+    kept: list[dict[str, Any]] = []
+    for q in peaks:
+        if all(abs(q["frequency"] - k["frequency"]) * dom.window > 4.0 for k in kept):
+            kept.append(q)
+    return kept, tab
+
+
+def _refine_period(lg: _Long, axis: str, period: float, window: float, n_tight: int) -> float:
+    """The period of a spectral peak refined to well within a bin: the frequency (within a bin
+    either side) whose sine and cosine per tightening, fitted to the drift-free residual of the
+    long stretch, take up the most of it (a parabola through the best of nine trial
+    frequencies). Per tightening the 2 x 2 normal equations, from sums over its samples."""
+    u = _axis(lg, axis)
+    if u is None:
+        return period
+    spans = lg.span if axis == "angle" else _spans(lg.gid, u, n_tight)
+    held = np.flatnonzero(spans >= period)
+    # a spread of at most 500 tightenings locates the period well within a bin
+    held = held[:: max(1, len(held) // 500)]
+    sel = np.zeros(n_tight, dtype=bool)
+    sel[held] = True
+    sel = sel[lg.gid]
+    if sel.sum() < 100:
+        return period
+    gid, r, uu = lg.gid[sel], lg.resid[sel], u[sel]
+    f0, df = 1.0 / period, 1.0 / window
+
+    def taken_up(f: float) -> float:
+        ph = 2 * math.pi * f * uu
+        sn, cs = np.sin(ph), np.cos(ph)
+
+        def tot(v: F64) -> F64:
+            out: F64 = np.asarray(np.bincount(gid, weights=v, minlength=n_tight), dtype=np.float64)
+            return out
+
+        a, b, c = tot(sn * sn), tot(sn * cs), tot(cs * cs)
+        p, q = tot(sn * r), tot(cs * r)
+        det = a * c - b * b
+        ok = det > 1e-12 * np.maximum(a * c, 1e-300)
+        red = np.where(ok, (c * p * p - 2 * b * p * q + a * q * q) / np.where(ok, det, 1.0), 0.0)
+        return float(np.sum(red))
+
+    fs = f0 + df * np.linspace(-1.0, 1.0, 9)
+    fs = fs[fs > 0]
+    vals = np.array([taken_up(float(f)) for f in fs])
+    k = int(np.argmax(vals))
+    # no maximum inside the bin either side (a broad or weak peak): the peak's own centroid
+    f_best = float(fs[k]) if 0 < k < len(fs) - 1 else f0
+    if 0 < k < len(fs) - 1:
+        lo, mid, hi = vals[k - 1], vals[k], vals[k + 1]
+        den = lo - 2 * mid + hi
+        if den < 0:
+            cand = float(fs[k] + 0.5 * (lo - hi) / den * (fs[1] - fs[0]))
+            if taken_up(cand) > mid:
+                f_best = cand
+    return 1.0 / f_best
+
+
+def _lsd(a: F64, b: F64) -> float:
+    """Log-spectral distance in dB: the root mean square of 10 log10(a / b) over the bins."""
+    ok = (a > 0) & (b > 0)
+    return float(np.sqrt(np.mean((10.0 * np.log10(a[ok] / b[ok])) ** 2))) if ok.any() else float("nan")
+
+
+def _spectral_search(lg: _Long | None, n_tight: int, alpha: float = 0.01, min_gain: float = 0.01, remove: list[tuple[str, float]] | None = None, before: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Spectral search over the long-stretch residual against the angle and against time.
+
+    Per axis: each tightening's stretch (after its quadratic drift) resampled on a uniform grid,
+    cut in Welch segments of a few revolutions with half overlap, Hann-tapered, each segment's
+    power normalised to mean 1 and averaged across all tightenings (the phase may differ in
+    every tightening: the power does not). A bin is a peak when it is a local maximum whose
+    ratio to the background of its neighbours is significant (chi-square, Bonferroni over every
+    bin searched on both axes, ``alpha``) and whose lobe holds at least 1 - (1 - min_gain)^2 of
+    the residual power (what removing it would gain in RMSE: ``min_gain``).
+
+    ``remove``: the periodic terms of the model, (axis, period): a sine and cosine each per
+    tightening fitted with the drift, and the spectra recomputed; ``before`` (this function's
+    output without ``remove``) then gives the log-spectral distance between the two."""
+    out: dict[str, Any] = {
+        "stretch": "rundown before the declared stretch, after a quadratic drift per tightening",
+        "alpha": alpha,
+        "min_power_share": 1.0 - (1.0 - min_gain) ** 2,
+        "peaks": [],
+        "axes": {},
+    }
+    if lg is None:
+        out["note"] = "no rundown before the declared stretch: periodicities cannot be examined"
+        return out
+    r = lg.resid
+    if remove:
+        extra = []
+        for axis, period in remove:
+            u = _axis(lg, axis)
+            if u is None:
+                continue
+            ph = 2 * math.pi * u / period
+            extra += [np.sin(ph), np.cos(ph)]
+        if extra and lg.y is not None:
+            r = lg.y - _poly_fit(lg.gid, lg.theta, lg.y, n_tight, extra)[0]
+        out["removed"] = [{"axis": a, "period": p} for a, p in remove]
+    doms = [d for d in (_choose_domain(lg, "angle", n_tight), _choose_domain(lg, "time", n_tight)) if d is not None]
+    spectra = {}
+    for dom in doms:
+        sp = _domain_spectrum(lg, dom, r)
+        if sp is not None:
+            spectra[dom.name] = (dom, sp)
+    if not spectra:
+        out["note"] = "the rundown stretches are too short or too few for a spectrum"
+        return out
+    tests = sum(max(sp["hi_bin"] - sp["lo_bin"], 1) for _, sp in spectra.values())
+    out["bins_searched"] = tests
+    for name, (dom, sp) in spectra.items():
+        peaks, tab = _find_peaks(sp, dom, lg, tests, alpha, out["min_power_share"])
+        keep = np.arange(sp["lo_bin"], sp["hi_bin"])
+        ax: dict[str, Any] = {
+            f"window_{dom.unit}": dom.window,
+            f"grid_step_{dom.unit}": dom.step,
+            f"sample_spacing_{dom.unit}": dom.spacing,
+            f"shortest_period_{dom.unit}": sp["min_period"],
+            f"longest_period_{dom.unit}": dom.window / sp["lo_bin"],
+            "segments": sp["segments"],
+            "tightenings": sp["tightenings"],
+            # the seed's log-spectral distance of the averaged spectrum from its smoothed
+            # background (0 dB: featureless) over the bins searched
+            "distance_from_background_db": _lsd(sp["P"][keep], tab["bg"][keep]),
+        }
+        if before is not None and name in before.get("_spectra", {}):
+            P0 = before["_spectra"][name]
+            if len(P0) == len(sp["P"]):
+                ax["log_spectral_distance_db"] = _lsd(sp["raw"][keep], P0[keep])
+        out["axes"][name] = ax
+        out["peaks"] += peaks
+        out.setdefault("_spectra", {})[name] = sp["raw"]
+        if name == "angle":
+            per = 1.0 / sp["freq"][keep]
+            out["_curve"] = (per, sp["P"][keep])
+    out["peaks"].sort(key=lambda q: -q["power_ratio"])
+    return out
+
+
+def _periodogram(lg: _Long | None, n_tight: int, alpha: float = 0.01, min_gain: float = 0.01, search: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The angle part of :func:`_spectral_search` in the layout of ``details["periodogram"]``."""
+    info: dict[str, Any] = {"window_deg": None, "peaks": [], "stretch": "rundown before the declared stretch, after a quadratic drift per tightening"}
+    sr = search if search is not None else _spectral_search(lg, n_tight, alpha, min_gain)
+    ax = sr.get("axes", {}).get("angle")
+    if ax is None:
+        info["note"] = sr.get("note", "the rundown stretches are too short for a periodogram")
         return info
-    P = np.mean(powers, axis=0)
-    periods = np.r_[window, 1.0 / freq[1:]]
-    # periods shorter than a few sample spacings are interpolation and aliasing, not data
-    d_theta = np.diff(lg.theta)
-    d_theta = d_theta[(np.diff(lg.gid) == 0) & (d_theta > 0)]
-    spacing = float(np.median(d_theta)) if len(d_theta) else 0.0
-    min_period = max(4.0 * spacing, 4.0 * grid_step)
-    info["sample_spacing_deg"] = spacing
-    info["shortest_period_deg"] = min_period
-    info["window_deg"] = window
-    info["segments"] = len(powers)
-    keep_curve = periods[1:] >= min_period
-    info["_curve"] = (periods[1:][keep_curve], P[1:][keep_curve])
-    peaks = []
-    se = 1.0 / math.sqrt(len(powers))
-    # from the third bin on: the first two carry the drift left by the detrending and taper
-    for i in range(3, len(P) - 1):
-        lo, hi = max(1, i - 8), min(len(P), i + 9)
-        neigh = float(np.median(np.r_[P[lo:i - 1], P[i + 2:hi]]))
-        if periods[i] < min_period:
-            break
-        if P[i] >= P[i - 1] and P[i] >= P[i + 1] and P[i] > neigh * (1 + 10 * se) and P[i] > 1.5 * neigh:
-            peaks.append({"period_deg": float(periods[i]), "power_ratio": float(P[i] / neigh)})
-    peaks.sort(key=lambda p: -p["power_ratio"])
-    info["peaks"] = peaks[:5]
+    info["sample_spacing_deg"] = ax["sample_spacing_deg"]
+    info["shortest_period_deg"] = ax["shortest_period_deg"]
+    info["window_deg"] = ax["window_deg"]
+    info["segments"] = ax["segments"]
+    if "_curve" in sr:
+        info["_curve"] = sr["_curve"]
+    info["peaks"] = [
+        {"period_deg": q["period_deg"], "power_ratio": q["power_ratio"], "p_value": q["p_value"], "amplitude_nm": q["amplitude_nm"]}
+        for q in sr["peaks"]
+        if q["domain"] == "angle"
+    ][:5]
     return info
 
 

@@ -119,6 +119,13 @@ fn local_lines<'a>(x: &'a [f64], y: &'a [f64], block: usize) -> impl Iterator<It
     })
 }
 
+/// The factor that puts a block of samples `ys` (torque) on the scale of unit noise where the
+/// noise grows with the torque, `sd = sd0 (1 + sd_slope T)`: `1 / (1 + sd_slope level)`.
+fn unit_scale(ys: &[f64], sd_slope: f64) -> f64 {
+    let level = ys.iter().sum::<f64>() / ys.len().max(1) as f64;
+    1.0 / (1.0 + sd_slope * level.max(0.0))
+}
+
 /// Autocovariances at lags `0..=max_lag` of the residuals of local least-squares lines fitted to
 /// consecutive blocks of `block` samples (the last block takes the remainder), pooled over the
 /// blocks: lag products are only taken within a block. A block whose residual variance exceeds
@@ -151,8 +158,7 @@ fn local_autocovariances(
         // loud blocks near the target neither dominate the pooled sums (leaving a few blocks'
         // worth of evidence: phi 0.85 spread over 0.78-0.88 from 7,000 samples at 10 kHz) nor
         // pass for outliers.
-        let level = ys.iter().sum::<f64>() / m;
-        let unit = 1.0 / (1.0 + sd_slope * level.max(0.0));
+        let unit = unit_scale(ys, sd_slope);
         residual.iter_mut().for_each(|r| *r *= unit);
         let mut sums = vec![0.0; max_lag + 1];
         let mut pairs = vec![0.0; max_lag + 1];
@@ -635,17 +641,14 @@ pub fn fit_student_t(residuals: &[f64]) -> Option<StudentFit> {
 /// with a variance per group. Pooling groups on one scale would make a scale mixture, which
 /// has heavy tails of its own. Groups of fewer than 2 residuals or all zero are left out.
 pub fn fit_student_t_groups(groups: &[&[f64]]) -> Option<StudentFit> {
-    let used: Vec<&[f64]> = groups
-        .iter()
-        .copied()
-        .filter(|g| g.len() >= 2 && g.iter().any(|r| *r != 0.0))
-        .collect();
-    let n: usize = used.iter().map(|g| g.len()).sum();
+    // A group takes part when it has two residuals or more, not all zero.
+    let usable: Vec<bool> = groups.iter().map(|g| g.len() >= 2 && g.iter().any(|r| *r != 0.0)).collect();
+    let n: usize = groups.iter().zip(&usable).filter(|(_, u)| **u).map(|(g, _)| g.len()).sum();
     if n < 5 {
         return None;
     }
     let mut ll_normal = 0.0;
-    for g in &used {
+    for (g, _) in groups.iter().zip(&usable).filter(|(_, u)| **u) {
         let var = g.iter().map(|r| r * r).sum::<f64>() / g.len() as f64;
         if !var.is_finite() {
             return None;
@@ -656,8 +659,8 @@ pub fn fit_student_t_groups(groups: &[&[f64]]) -> Option<StudentFit> {
     'grid: for &nu in &STUDENT_T_DEGREES {
         let mut ll = 0.0;
         let mut scales = Vec::with_capacity(groups.len());
-        for g in groups {
-            if !used.iter().any(|u| std::ptr::eq(*u, *g)) {
+        for (g, &use_it) in groups.iter().zip(&usable) {
+            if !use_it {
                 scales.push(f64::NAN);
                 continue;
             }
@@ -743,8 +746,7 @@ pub fn block_noise(
         let ys = &y[lo..lo + block];
         quadratic_residuals(&x[lo..lo + block], ys, &mut fitted);
         whiten(&fitted, phi, &mut whitened);
-        let level = ys.iter().sum::<f64>() / block as f64;
-        let unit = 1.0 / (1.0 + sd_slope * level.max(0.0));
+        let unit = unit_scale(ys, sd_slope);
         out.extend(whitened[phi.len()..].iter().map(|v| v * unit));
         lo += block;
     }

@@ -80,7 +80,7 @@ pub(super) struct Scratch {
 /// chi-square's 2 % point.
 const HEAVY_TAIL_LR: f64 = 5.41;
 /// Fewer whitened samples than this leave the tails too uncertain to act on.
-const MIN_KURTOSIS_SAMPLES: usize = 30;
+const MIN_TAIL_SAMPLES: usize = 30;
 
 /// The part of the elastic window the detectors test, as a `too_short` status names it: the
 /// whole window, or the part a controller event leaves (a step change, or a pause of the tool
@@ -231,7 +231,7 @@ impl Scratch {
         // The front of the window only: a late friction change, which only the end test can
         // see, would itself look like a heavy tail of the whole window's residuals.
         let front = n.saturating_sub(crate::detectors::breakpoint::min_segment(n.saturating_sub(lag)));
-        if front < lag + MIN_KURTOSIS_SAMPLES || front > self.wx.len() || self.wy.len() != self.wx.len() {
+        if front < lag + MIN_TAIL_SAMPLES || front > self.wx.len() || self.wy.len() != self.wx.len() {
             return;
         }
         let (a, b) = crate::detectors::least_squares_line(&self.wx[lag..front], &self.wy[lag..front]);

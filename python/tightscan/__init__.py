@@ -12,7 +12,7 @@ from __future__ import annotations
 import warnings
 
 from . import _core
-from ._api import ScanSummary, cusum_arl, cusum_threshold, detect_batch, read_results, scan_parquet, simulate
+from ._api import ScanSummary, cusum_arl, cusum_threshold, detect_batch, read_results, result_schema, scan_parquet, simulate
 from .config import (
     BlockConfig,
     BreakConfig,
@@ -45,6 +45,7 @@ __all__ = [
     "diagnose",
     "scan_parquet",
     "read_results",
+    "result_schema",
     "read_rexroth",
     "monitor_sequence",
     "monitor_regression",

@@ -27,6 +27,7 @@ __all__ = [
     "simulate",
     "cusum_threshold",
     "cusum_arl",
+    "result_schema",
     "ScanSummary",
 ]
 
@@ -47,6 +48,36 @@ def _passthrough_list(passthrough: Sequence[str] | bool | None, columns: Sequenc
     if isinstance(passthrough, str):
         return [passthrough]
     return list(passthrough)
+
+
+def result_schema(
+    input_schema: Any,
+    passthrough: Sequence[str] | bool | None = None,
+    config: ConfigLike = None,
+) -> pa.Schema:
+    """The Arrow schema of :func:`detect_batch`'s results for input of ``input_schema``.
+
+    Engines that need the output type before they run (``dask.dataframe.map_partitions``'s
+    ``meta``, a Parquet writer opened ahead of the first batch) get it here, from the same
+    place the engine builds its rows. ``input_schema`` is a ``pyarrow.Schema`` or anything
+    with one (a Table, a polars DataFrame); ``passthrough`` as in :func:`detect_batch`.
+
+    >>> import tightscan
+    >>> curves, _ = tightscan.simulate(5, seed=1)
+    >>> schema = tightscan.result_schema(curves.schema)
+    >>> schema.names == tightscan.detect_batch(curves).column_names
+    True
+    """
+    if not isinstance(input_schema, pa.Schema):
+        if isinstance(input_schema, (pa.Table, pa.RecordBatch)):
+            input_schema = input_schema.schema
+        elif hasattr(input_schema, "__arrow_c_schema__") or hasattr(input_schema, "__arrow_c_stream__"):
+            input_schema = pa.schema(input_schema) if hasattr(input_schema, "__arrow_c_schema__") else pa.RecordBatchReader.from_stream(input_schema).schema
+        else:
+            raise TypeError(f"result_schema needs a pyarrow.Schema or an Arrow table, not {type(input_schema).__name__}")
+    pass_cols = _passthrough_list(passthrough, input_schema.names)
+    schema: pa.Schema = _core.result_schema(input_schema, as_dict(config), pass_cols)
+    return schema
 
 
 def detect_batch(

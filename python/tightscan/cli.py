@@ -11,7 +11,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from ._api import ScanSummary, scan_parquet, simulate
+from ._api import simulate
+from ._scan import ScanSummary, read_results, scan_parquet
 from .config import (
     BlockConfig,
     CusumConfig,

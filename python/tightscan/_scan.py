@@ -592,7 +592,8 @@ def _run_dask(tasks: list[_FileTask], plan: _Plan, bar: Progress) -> Generator[_
     except ValueError:
         # No client yet: a local cluster for this scan. To use a real cluster, create
         # `dask.distributed.Client(address)` before scanning.
-        own = client = Client(processes=True, dashboard_address=":0")
+        make_client: Any = Client
+        own = client = make_client(processes=True, dashboard_address=":0")
     try:
         scan_id = uuid.uuid4().hex[:12]
         futures = client.map(

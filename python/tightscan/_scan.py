@@ -669,9 +669,12 @@ def _scan_key(plan: _Plan) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _destination(destination: PathLike, partition_by: Sequence[str] | None) -> tuple[pafs.FileSystem, str, bool]:
+def _destination(destination: PathLike, partition_by: Sequence[str] | None, filesystem: Any) -> tuple[pafs.FileSystem, str, bool]:
     text = os.fspath(destination)
-    fs, path = _split_uri(text, None)
+    # The source's filesystem also reaches a destination URI of its kind (s3:// beside an
+    # S3 endpoint of one's own); anything else is found from the destination itself.
+    same_kind = filesystem is not None and "://" in text and urlparse(text).scheme == _arrow_filesystem(filesystem).type_name
+    fs, path = _split_uri(text, filesystem if same_kind else None)
     single = path.lower().endswith(PARQUET_SUFFIXES) and not partition_by
     if partition_by and path.lower().endswith(PARQUET_SUFFIXES):
         raise InvalidParameterError(f"partition_by writes a directory of results; {text} names a file", "partition_by")
@@ -771,7 +774,7 @@ def scan_parquet(
         columns = [columns]
     if isinstance(partition_by, str):
         partition_by = [partition_by]
-    out_fs, out_path, single = _destination(destination, partition_by)
+    out_fs, out_path, single = _destination(destination, partition_by, filesystem)
     if resume and single:
         raise InvalidParameterError("resume needs a directory destination (one results file per input file)", "resume")
 

@@ -714,7 +714,17 @@ def _flat_name(rel: str) -> str:
     return name if name.lower().endswith(PARQUET_SUFFIXES) else name + ".parquet"
 
 
-def scan_parquet(
+@dataclass
+class _Setup:
+    plan: _Plan
+    tasks: list[_FileTask]
+    bad: dict[int, tuple[str, str, str | None]]
+    single: bool
+    out_fs: pafs.FileSystem
+    out_path: str
+
+
+def _plan_scan(
     source: SourceLike,
     destination: PathLike,
     config: ConfigLike = None,
@@ -725,47 +735,11 @@ def scan_parquet(
     filesystem: Any = None,
     passthrough: Sequence[str] | bool | None = None,
     batch_size: int = 8192,
-    progress: bool | None = None,
-    engine: Engine = "local",
     partition_by: Sequence[str] | None = None,
-    on_bad_file: Literal["raise", "skip"] = "raise",
+    on_bad_file: str = "raise",
     resume: bool = False,
-) -> ScanSummary:
-    """Detect friction changes in Parquet files where they live and write the results as Parquet.
-
-    ``source``: a file, a directory (every data file below it; names starting with ``.`` or
-    ``_`` are not data), a glob (``**`` spans directories), a list of them, a URI
-    (``file://``, ``s3://``, ``gs://``, ``abfs://``, ``hdfs://``; other schemes through
-    fsspec), or a ``pyarrow.dataset.Dataset``. ``filesystem`` (a ``pyarrow.fs`` or fsspec
-    filesystem) says how to reach the paths, e.g. an S3 endpoint of one's own.
-
-    Hive directories (``station=7/``) below the source's directory become columns
-    (``partitioning="hive"``, or a ``pyarrow.dataset.Partitioning``, or None) that pass
-    through like any other (``passthrough=True`` or ``["station"]``). ``columns`` reads only
-    those columns; ``filter`` (a ``pyarrow.compute`` expression) skips partitions and row
-    groups in the reader. Filter on columns constant within a tightening (station, day):
-    a filter on samples would cut curves.
-
-    ``destination``: a ``*.parquet`` file, or a directory (any other name) that gets one
-    results file per input file, in hive directories by ``partition_by`` columns of the
-    results. Outputs appear only when complete (temporary name, then rename), so a killed
-    scan leaves nothing that looks finished; in a directory, ``resume=True`` skips the input
-    files whose results are complete (recorded in ``_tightscan/``) and scans the rest.
-
-    ``engine``: ``"local"`` (this process, all cores in Rust), ``"dask"`` (the current
-    ``dask.distributed`` client, else a local cluster) or ``"ray"`` (the running Ray, else a
-    local one); one task per input file, the same rows in the same order on every engine.
-
-    Raises :class:`DataFileError` naming a file that is missing or unreadable and
-    :class:`SchemaError` naming the file and column that breaks the data contract; with
-    ``on_bad_file="skip"`` such files are left out and listed in the summary instead. A
-    failed scan leaves no results file behind (in a directory: the files completed before).
-    Within a file, a long-layout tightening whose rows reappear after other tightenings
-    (or in a later file) is an error naming the file and the id.
-    """
-    started = time.perf_counter()
-    if engine not in _ENGINES:
-        raise InvalidParameterError(f"engine must be one of {', '.join(_ENGINES)}, not {engine!r}", "engine")
+) -> _Setup:
+    """Everything a scan decides before it reads a row: the files, the schema, the plan."""
     if on_bad_file not in ("raise", "skip"):
         raise InvalidParameterError(f"on_bad_file must be 'raise' or 'skip', not {on_bad_file!r}", "on_bad_file")
     if batch_size < 1:
@@ -810,7 +784,6 @@ def scan_parquet(
 
     # The scan's results schema, from the first file that fits the data contract
     cfg = as_dict(config)
-    summary = ScanSummary(destination=os.fspath(destination), engine=engine)
     bad: dict[int, tuple[str, str, str | None]] = {}
     plan: _Plan | None = None
     for task in tasks:
@@ -875,6 +848,78 @@ def scan_parquet(
 
     if not single:
         plan.out_fs, plan.out_dir = out_fs, out_path
+    return _Setup(plan, tasks, bad, single, out_fs, out_path)
+
+
+def scan_parquet(
+    source: SourceLike,
+    destination: PathLike,
+    config: ConfigLike = None,
+    *,
+    columns: Sequence[str] | None = None,
+    filter: pc.Expression | None = None,
+    partitioning: str | ds.Partitioning | None = "hive",
+    filesystem: Any = None,
+    passthrough: Sequence[str] | bool | None = None,
+    batch_size: int = 8192,
+    progress: bool | None = None,
+    engine: Engine = "local",
+    partition_by: Sequence[str] | None = None,
+    on_bad_file: Literal["raise", "skip"] = "raise",
+    resume: bool = False,
+) -> ScanSummary:
+    """Detect friction changes in Parquet files where they live and write the results as Parquet.
+
+    ``source``: a file, a directory (every data file below it; names starting with ``.`` or
+    ``_`` are not data), a glob (``**`` spans directories), a list of them, a URI
+    (``file://``, ``s3://``, ``gs://``, ``abfs://``, ``hdfs://``; other schemes through
+    fsspec), or a ``pyarrow.dataset.Dataset``. ``filesystem`` (a ``pyarrow.fs`` or fsspec
+    filesystem) says how to reach the paths, e.g. an S3 endpoint of one's own.
+
+    Hive directories (``station=7/``) below the source's directory become columns
+    (``partitioning="hive"``, or a ``pyarrow.dataset.Partitioning``, or None) that pass
+    through like any other (``passthrough=True`` or ``["station"]``). ``columns`` reads only
+    those columns; ``filter`` (a ``pyarrow.compute`` expression) skips partitions and row
+    groups in the reader. Filter on columns constant within a tightening (station, day):
+    a filter on samples would cut curves.
+
+    ``destination``: a ``*.parquet`` file, or a directory (any other name) that gets one
+    results file per input file, in hive directories by ``partition_by`` columns of the
+    results. Outputs appear only when complete (temporary name, then rename), so a killed
+    scan leaves nothing that looks finished; in a directory, ``resume=True`` skips the input
+    files whose results are complete (recorded in ``_tightscan/``) and scans the rest.
+
+    ``engine``: ``"local"`` (this process, all cores in Rust), ``"dask"`` (the current
+    ``dask.distributed`` client, else a local cluster) or ``"ray"`` (the running Ray, else a
+    local one); one task per input file, the same rows in the same order on every engine.
+
+    Raises :class:`DataFileError` naming a file that is missing or unreadable and
+    :class:`SchemaError` naming the file and column that breaks the data contract; with
+    ``on_bad_file="skip"`` such files are left out and listed in the summary instead. A
+    failed scan leaves no results file behind (in a directory: the files completed before).
+    Within a file, a long-layout tightening whose rows reappear after other tightenings
+    (or in a later file) is an error naming the file and the id.
+    """
+    started = time.perf_counter()
+    if engine not in _ENGINES:
+        raise InvalidParameterError(f"engine must be one of {', '.join(_ENGINES)}, not {engine!r}", "engine")
+    setup = _plan_scan(
+        source,
+        destination,
+        config,
+        columns=columns,
+        filter=filter,
+        partitioning=partitioning,
+        filesystem=filesystem,
+        passthrough=passthrough,
+        batch_size=batch_size,
+        partition_by=partition_by,
+        on_bad_file=on_bad_file,
+        resume=resume,
+    )
+    plan, tasks, bad, single = setup.plan, setup.tasks, setup.bad, setup.single
+    summary = ScanSummary(destination=os.fspath(destination), engine=engine)
+    if not single:
         _prepare_directory(plan, resume)
 
     # Resume: files complete in the destination are not read again
@@ -892,7 +937,7 @@ def scan_parquet(
 
     enabled = sys.stderr.isatty() if progress is None else progress
     bar = Progress("scanning files", len(tasks), enabled)
-    sink: _AtomicParquet | None = _AtomicParquet(out_fs, out_path, plan.out_schema) if single else None
+    sink: _AtomicParquet | None = _AtomicParquet(setup.out_fs, setup.out_path, plan.out_schema) if single else None
     seen_ids: set[Any] = set()
     try:
         pending = [t for t in tasks if t.index not in bad]
@@ -933,6 +978,7 @@ def scan_parquet(
         if sink is not None:
             sink.commit()
             sink = None
+            _remove_leftovers(setup.out_fs, setup.out_path)
     finally:
         if sink is not None:
             sink.abort()
@@ -962,6 +1008,19 @@ def _prepare_directory(plan: _Plan, resume: bool) -> None:
                 except OSError:
                     pass
             fs.delete_file(info.path)
+
+
+def _remove_leftovers(fs: pafs.FileSystem, final: str) -> None:
+    """The temporary files of earlier, killed scans to the same results file."""
+    parent, _, name = final.rpartition("/")
+    prefix = f".{name}{TMP_MARK}"
+    try:
+        infos = fs.get_file_info(pafs.FileSelector(parent or ".", allow_not_found=True))
+        for info in infos:
+            if info.type == pafs.FileType.File and info.base_name.startswith(prefix):
+                fs.delete_file(info.path)
+    except OSError:
+        pass  # leftovers are hidden and harmless; failing to list them is no reason to fail
 
 
 def _read_json(fs: pafs.FileSystem, path: str) -> dict[str, Any] | None:

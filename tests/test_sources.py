@@ -106,6 +106,22 @@ def test_uri_glob_list_and_dataset_sources_agree(tmp_path: Path, hive: tuple[Pat
         tightscan.scan_parquet(f"{root}/*.csv", tmp_path / "x.parquet")
 
 
+def test_directory_partitioning_and_in_memory_dataset(tmp_path: Path) -> None:
+    curves, _ = tightscan.simulate(20, seed=4)
+    for year in (2024, 2025):
+        d = tmp_path / "in" / str(year) / "01"
+        d.mkdir(parents=True)
+        pq.write_table(curves.slice((year - 2024) * 10, 10), d / "x.parquet")
+    by_date = ds.DirectoryPartitioning(pa.schema([("year", pa.int32()), ("month", pa.int32())]))
+    tightscan.scan_parquet(tmp_path / "in", tmp_path / "r.parquet", partitioning=by_date, passthrough=["year", "month"])
+    results = pq.read_table(tmp_path / "r.parquet")
+    assert results.column("year").to_pylist() == [2024] * 10 + [2025] * 10
+    assert set(results.column("month").to_pylist()) == {1}
+    # a dataset that is not files: one unit, read through the dataset
+    summary = tightscan.scan_parquet(ds.dataset(curves), tmp_path / "m.parquet")
+    assert summary.files == 1 and pq.read_table(tmp_path / "m.parquet").equals(tightscan.detect_batch(curves))
+
+
 def test_directory_destination_one_file_per_input_and_partition_by(tmp_path: Path, hive: tuple[Path, pa.Table]) -> None:
     root, full = hive
     expected = tightscan.detect_batch(full, passthrough=["station"])

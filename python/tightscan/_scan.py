@@ -771,7 +771,8 @@ def _plan_scan(
         fragments = []
         for path in inputs.files:
             rel = _relative(path, inputs.base)
-            expr = part.parse("/" + rel) if part is not None else pc.scalar(True)
+            # the directories only, as pyarrow.dataset does: a file name is never a key
+            expr = part.parse("/" + rel.rpartition("/")[0] + "/") if part is not None else pc.scalar(True)
             fragments.append(fmt.make_fragment(path, filesystem=inputs.filesystem, partition_expression=expr))
         tasks = [
             _FileTask(i, _display(inputs.filesystem, path), frag, _flat_name(_relative(path, inputs.base)))
@@ -945,7 +946,7 @@ def scan_parquet(
         by_index = {t.index: t for t in tasks}
         for task in tasks:
             if task.index in bad:
-                summary.skipped_files.append((task.name, bad[task.index][1]))
+                summary.skipped_files.append((task.name, _reason(task.name, bad[task.index][1])))
                 continue
             outcome = next(outcomes)
             assert outcome.index == task.index
@@ -968,7 +969,7 @@ def scan_parquet(
                     if kind == "DataFileError":
                         raise DataFileError(message, outcome.name)
                     raise SchemaError(message, column)
-                summary.skipped_files.append((outcome.name, message))
+                summary.skipped_files.append((outcome.name, _reason(outcome.name, message)))
                 continue
             if sink is not None and outcome.table is not None:
                 sink.write(outcome.table)
@@ -985,6 +986,13 @@ def scan_parquet(
         bar.close()
     summary.seconds = time.perf_counter() - started
     return summary
+
+
+def _reason(name: str, message: str) -> str:
+    """An error message without the file name in it (the summary lists that beside it)."""
+    if message.startswith(f"{name}: "):
+        return message[len(name) + 2 :]
+    return message.replace(f" {name}: ", ": ", 1)
 
 
 def _prepare_directory(plan: _Plan, resume: bool) -> None:
@@ -1041,9 +1049,12 @@ def _complete_files(plan: _Plan) -> dict[str, dict[str, Any]]:
         if info.type != pafs.FileType.File or not info.path.endswith(".json"):
             continue
         entry = _read_json(fs, info.path)
-        if entry and entry.get("scan_key") == plan.scan_key and all(fs.get_file_info(o).type == pafs.FileType.File for o in entry.get("outputs", [])):
+        if entry and entry.get("scan_key") == plan.scan_key:
             done[str(entry["input"])] = entry
-    return done
+    # an entry counts only while all its outputs are there (one listing request for all)
+    outputs = sorted({str(o) for entry in done.values() for o in entry.get("outputs", [])})
+    present = {i.path for i in fs.get_file_info(outputs) if i.type == pafs.FileType.File} if outputs else set()
+    return {name: entry for name, entry in done.items() if all(str(o) in present for o in entry.get("outputs", []))}
 
 
 def _discard(plan: _Plan, outcome: _FileOutcome, task: _FileTask) -> None:

@@ -940,9 +940,8 @@ def scan_parquet(
     bar = Progress("scanning files", len(tasks), enabled)
     sink: _AtomicParquet | None = _AtomicParquet(setup.out_fs, setup.out_path, plan.out_schema) if single else None
     seen_ids: set[Any] = set()
+    outcomes = _ENGINES[engine]([t for t in tasks if t.index not in bad], plan, bar)
     try:
-        pending = [t for t in tasks if t.index not in bad]
-        outcomes = _ENGINES[engine](pending, plan, bar)
         by_index = {t.index: t for t in tasks}
         for task in tasks:
             if task.index in bad:
@@ -975,12 +974,13 @@ def scan_parquet(
                 sink.write(outcome.table)
             summary.files += 1
             summary._add(outcome.stats)
-        outcomes.close()
+        outcomes.close()  # the engine lets go of its workers before the results are published
         if sink is not None:
             sink.commit()
             sink = None
             _remove_leftovers(setup.out_fs, setup.out_path)
     finally:
+        outcomes.close()  # on an error too: cancel what is still queued, stop a cluster of our own
         if sink is not None:
             sink.abort()
         bar.close()

@@ -599,12 +599,15 @@ def _run_dask(tasks: list[_FileTask], plan: _Plan, bar: Progress) -> Generator[_
         futures = client.map(
             _scan_file, tasks, plan=plan, pure=False, retries=2, key=[f"tightscan-{scan_id}-{t.index}" for t in tasks]
         )
+        consumed = 0
         try:
             for future in futures:
                 yield future.result()
+                consumed += 1
                 bar.advance()
         finally:
-            client.cancel(futures)
+            if consumed < len(futures):
+                client.cancel(futures[consumed:])
     finally:
         if own is not None:
             own.close()
@@ -625,16 +628,20 @@ def _run_ray(tasks: list[_FileTask], plan: _Plan, bar: Progress) -> Generator[_F
         remote = ray.remote(max_retries=3)(_scan_file)
         plan_ref = ray.put(plan)
         refs = [remote.remote(t, plan_ref) for t in tasks]
+        consumed = 0
         try:
             for ref in refs:
                 yield ray.get(ref)
+                consumed += 1
                 bar.advance()
         finally:
-            for ref in refs:
-                try:
+            # Only tasks still running or queued (a scan stopped by an error): cancelling
+            # finished ones trips Ray's task manager.
+            left = refs[consumed:]
+            if left:
+                _, running = ray.wait(left, num_returns=len(left), timeout=0)
+                for ref in running:
                     ray.cancel(ref)
-                except Exception:  # noqa: BLE001 - a finished task cannot be cancelled
-                    pass
     finally:
         if started:
             ray.shutdown()

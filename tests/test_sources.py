@@ -106,6 +106,24 @@ def test_uri_glob_list_and_dataset_sources_agree(tmp_path: Path, hive: tuple[Pat
         tightscan.scan_parquet(f"{root}/*.csv", tmp_path / "x.parquet")
 
 
+def test_fsspec_filesystem_and_uri(tmp_path: Path, hive: tuple[Path, pa.Table]) -> None:
+    fsspec = pytest.importorskip("fsspec")
+    root, full = hive
+    memory = fsspec.filesystem("memory")
+    for f in sorted(root.rglob("*.parquet")):
+        with memory.open(f"/tightscan-test/{f.relative_to(root).as_posix()}", "wb") as out:
+            out.write(f.read_bytes())
+    expected = tightscan.detect_batch(full, passthrough=["station"])
+    try:
+        tightscan.scan_parquet("/tightscan-test", tmp_path / "a.parquet", filesystem=memory, passthrough=["station"])
+        assert pq.read_table(tmp_path / "a.parquet").equals(expected)
+        # a scheme pyarrow does not know goes through fsspec
+        tightscan.scan_parquet("memory://tightscan-test", tmp_path / "b.parquet", passthrough=["station"])
+        assert pq.read_table(tmp_path / "b.parquet").equals(expected)
+    finally:
+        memory.rm("/tightscan-test", recursive=True)
+
+
 def test_directory_partitioning_and_in_memory_dataset(tmp_path: Path) -> None:
     curves, _ = tightscan.simulate(20, seed=4)
     for year in (2024, 2025):

@@ -43,30 +43,46 @@ def assert_same_outputs(local: Path, other: Path) -> None:
     assert not [p for p in other.rglob("*") if ".tightscan-tmp-" in p.name]
 
 
-def _in_dask_worker() -> bool:
-    from distributed import get_worker
+def _in_worker(engine: str) -> bool:
+    """True in a Dask worker or a Ray worker process, False in the driver (the test)."""
+    if engine == "dask":
+        from distributed import get_worker
 
-    try:
-        get_worker()
-    except ValueError:
-        return False
-    return True
+        try:
+            get_worker()
+        except ValueError:
+            return False
+        return True
+    import ray
+
+    return bool(ray.is_initialized() and ray.get_runtime_context().worker.mode == 1)  # 1: WORKER_MODE
 
 
 class DieOnceHandler(pafs.FSSpecHandler):
-    """Local files (through fsspec); the first Dask worker that opens ``victim`` dies on the spot."""
+    """Local files (through fsspec); the first worker that opens ``victim`` dies on the spot."""
 
-    def __init__(self, marker: str, victim: str) -> None:
+    def __init__(self, marker: str, victim: str, engine: str) -> None:
         from fsspec.implementations.local import LocalFileSystem
 
         super().__init__(LocalFileSystem())
-        self.marker, self.victim = marker, victim
+        self.marker, self.victim, self.engine = marker, victim, engine
 
     def open_input_file(self, path: str) -> Any:
-        if path.endswith(self.victim) and _in_dask_worker() and not os.path.exists(self.marker):
+        if path.endswith(self.victim) and _in_worker(self.engine) and not os.path.exists(self.marker):
             Path(self.marker).touch()
             os._exit(1)  # a crashed worker: no exception, no clean-up
         return super().open_input_file(path)
+
+
+def scan_with_a_dying_worker(engine: str, root: Path, local: Path, tmp_path: Path) -> None:
+    marker = tmp_path / "died"
+    fs = pafs.PyFileSystem(DieOnceHandler(str(marker), "part-3.parquet", engine))
+    out = tmp_path / engine
+    summary = tightscan.scan_parquet(str(root), out, passthrough=["station", "strategy"], engine=engine, filesystem=fs)  # type: ignore[arg-type]
+    assert marker.exists()  # a worker did die on part-3
+    assert summary.files == N_FILES and summary.tightenings == N_FILES * PER_FILE
+    assert_same_outputs(local, out)
+    assert len(list((out / "_tightscan").glob("*.json"))) == N_FILES
 
 
 # Class-scoped: each cluster is up only while its class runs (two cores, never both at once).
@@ -113,14 +129,7 @@ class TestDask:
         # the workers cannot import this test module: ship the filesystem class by value
         cloudpickle.register_pickle_by_value(sys.modules[__name__])
         root, local, _ = data
-        marker = tmp_path / "died"
-        fs = pafs.PyFileSystem(DieOnceHandler(str(marker), "part-3.parquet"))
-        out = tmp_path / "dask"
-        summary = tightscan.scan_parquet(str(root), out, passthrough=["station", "strategy"], engine="dask", filesystem=fs)
-        assert marker.exists()  # a worker did die on part-3
-        assert summary.files == N_FILES and summary.tightenings == N_FILES * PER_FILE
-        assert_same_outputs(local, out)
-        assert len(list((out / "_tightscan").glob("*.json"))) == N_FILES
+        scan_with_a_dying_worker("dask", root, local, tmp_path)
 
     def test_detect_partitions_pandas_in_pandas_out(self, client: Any, data: tuple[Path, Path, pa.Table]) -> None:
         import dask.dataframe as dd
@@ -160,6 +169,13 @@ class TestRay:
         assert not (tmp_path / "r.parquet").exists()
         summary = tightscan.scan_parquet(bad, tmp_path / "r.parquet", engine="ray", on_bad_file="skip")
         assert [Path(p).name for p, _ in summary.skipped_files] == ["part-9.parquet"]
+
+    def test_dead_worker_is_retried_and_writes_its_file_once(self, ray_session: Any, data: tuple[Path, Path, pa.Table], tmp_path: Path) -> None:
+        from ray import cloudpickle
+
+        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+        root, local, _ = data
+        scan_with_a_dying_worker("ray", root, local, tmp_path)
 
     # Ray Data's own settings object warns about its own deprecated defaults (not ours to fix)
     @pytest.mark.filterwarnings("ignore::DeprecationWarning:ray.data.context")

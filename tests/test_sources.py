@@ -124,6 +124,16 @@ def test_fsspec_filesystem_and_uri(tmp_path: Path, hive: tuple[Path, pa.Table]) 
         memory.rm("/tightscan-test", recursive=True)
 
 
+def test_row_numbers_stand_in_for_a_missing_id_across_files(tmp_path: Path) -> None:
+    curves, _ = tightscan.simulate(12, seed=6)
+    curves = curves.drop_columns(["tightening_id"])
+    for i in range(3):
+        pq.write_table(curves.slice(4 * i, 4), tmp_path / f"f{i}.parquet")
+    tightscan.scan_parquet(sorted(tmp_path.glob("f*.parquet")), tmp_path / "out")
+    # as if the three files were one table, whichever file a task scans first
+    assert tightscan.read_results(tmp_path / "out").equals(tightscan.detect_batch(curves))
+
+
 def test_directory_partitioning_and_in_memory_dataset(tmp_path: Path) -> None:
     curves, _ = tightscan.simulate(20, seed=4)
     for year in (2024, 2025):

@@ -371,7 +371,7 @@ def _split_trailing_tightening(batch: pa.RecordBatch) -> tuple[pa.RecordBatch, p
     return batch.slice(0, cut), batch.slice(cut)
 
 
-def _detect_file(task: _FileTask, plan: _Plan, on_rows: Callable[[int], None] | None = None) -> Iterator[pa.Table]:
+def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
     """The results of one file, batch by batch (memory bounded by ``batch_size`` rows)."""
     schema, cols = _check_file(task, plan)
     try:
@@ -419,8 +419,6 @@ def _detect_file(task: _FileTask, plan: _Plan, on_rows: Callable[[int], None] | 
             break
         except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as e:
             raise DataFileError(f"cannot read Parquet file {task.name}: {e}", task.name) from e
-        if on_rows is not None:
-            on_rows(batch.num_rows)
         if plan.long_layout:
             if carry is not None and carry.num_rows:
                 batch = pa.Table.from_batches([carry, batch]).combine_chunks().to_batches()[0]

@@ -24,6 +24,8 @@ $(VENV)/.deps: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet "maturin>=1.9,<2" pyarrow numpy rich "scipy>=1.11" "statsmodels>=0.14" "pytest>=8" "hypothesis>=6.100" "polars>=1.0" "mypy>=1.10" "matplotlib>=3.8"
+	# scan engines and a local S3 server for tests/test_engines.py and tests/test_sources.py (issue 13)
+	$(PY) -m pip install --quiet "dask[distributed]>=2024.1" "pandas>=2.0" "ray[data]>=2.9" "moto[server]>=5"
 	touch $@
 
 $(VENV)/.built: $(VENV)/.deps $(RUST_SOURCES) $(PY_SOURCES)

@@ -12,7 +12,8 @@ from __future__ import annotations
 import warnings
 
 from . import _core
-from ._api import ScanSummary, cusum_arl, cusum_threshold, detect_batch, read_results, result_schema, scan_parquet, simulate
+from ._api import cusum_arl, cusum_threshold, detect_batch, result_schema, simulate
+from ._scan import ScanSummary, read_results, scan_parquet
 from .config import (
     BlockConfig,
     BreakConfig,

@@ -3,32 +3,22 @@
 from __future__ import annotations
 
 import os
-import time
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Iterable, Iterator, Sequence, Union
+from typing import TYPE_CHECKING, Any, Iterable, Sequence, Union
 
 import pyarrow as pa
-import pyarrow.compute as pc
-import pyarrow.dataset as ds
-import pyarrow.parquet as pq
 
 from . import _core
 from .config import ConfigLike, as_dict
-from ._paths import expand_paths
-from ._progress import Progress
-from .exceptions import DataFileError, SchemaError
 
 if TYPE_CHECKING:
     import polars
 
 __all__ = [
     "detect_batch",
-    "scan_parquet",
     "simulate",
     "cusum_threshold",
     "cusum_arl",
     "result_schema",
-    "ScanSummary",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -237,140 +227,6 @@ def cusum_arl(h: float, kappa: float, shift: float = 0.0, two_sided: bool = True
     169.0
     """
     return _core.cusum_arl(h, kappa, shift, two_sided)
-
-
-# ---------------------------------------------------------------------------------------------
-# Parquet in, Parquet out
-
-
-@dataclass
-class ScanSummary:
-    """What a scan read and found."""
-
-    destination: str
-    files: int = 0
-    tightenings: int = 0
-    samples: int = 0
-    changes: int = 0
-    seconds: float = 0.0
-    status_counts: dict[str, int] = field(default_factory=dict)
-
-
-def _expand_sources(source: PathLike | Sequence[PathLike]) -> list[str]:
-    # Parquet datasets are often partitioned into sub-directories: search them too.
-    return expand_paths(source, "*.parquet", recursive=True)
-
-
-def _open(path: str) -> ds.Dataset:
-    try:
-        return ds.dataset(path, format="parquet")
-    except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as e:
-        raise DataFileError(f"cannot read Parquet file {path}: {e}", path) from e
-
-
-def _batches(path: str, dataset: ds.Dataset, batch_size: int) -> Iterator[pa.RecordBatch]:
-    try:
-        yield from dataset.to_batches(batch_size=batch_size, use_threads=True)
-    except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as e:
-        raise DataFileError(f"cannot read Parquet file {path}: {e}", path) from e
-
-
-def _split_trailing_tightening(batch: pa.RecordBatch) -> tuple[pa.RecordBatch, pa.RecordBatch]:
-    """Long layout: the last tightening of a batch may go on in the next one; keep it back."""
-    if batch.num_rows == 0:
-        return batch, batch
-    ids = batch.column("tightening_id")
-    last = ids[len(ids) - 1]
-    same = pc.is_null(ids) if not last.is_valid else pc.fill_null(pc.equal(ids, last), False)
-    other = pc.indices_nonzero(pc.invert(same))
-    cut = other[len(other) - 1].as_py() + 1 if len(other) else 0
-    return batch.slice(0, cut), batch.slice(cut)
-
-
-def scan_parquet(
-    source: PathLike | Sequence[PathLike],
-    destination: PathLike,
-    config: ConfigLike = None,
-    *,
-    passthrough: Sequence[str] | bool | None = None,
-    batch_size: int = 8192,
-    progress: bool | None = None,
-) -> ScanSummary:
-    """Detect friction changes in Parquet files and write the results as Parquet.
-
-    ``source`` is a file, a directory (every ``*.parquet`` below it), a glob, or a list of
-    them. Record batches stream through: memory is bounded by ``batch_size`` rows, not by the
-    dataset. Each batch is analysed in Rust on all cores with the GIL released. A progress bar
-    shows on an interactive terminal (``progress`` forces it on or off).
-
-    Raises :class:`DataFileError` naming a file that is missing or unreadable, and
-    :class:`SchemaError` naming a column that breaks the data contract.
-    """
-    started = time.perf_counter()
-    files = _expand_sources(source)
-    datasets = [(f, _open(f)) for f in files]
-    cfg = as_dict(config)
-    first_schema = datasets[0][1].schema
-    pass_cols = _passthrough_list(passthrough, first_schema.names)
-    out_schema: pa.Schema = _core.result_schema(first_schema, cfg, pass_cols)
-    long_layout = not (
-        pa.types.is_list(first_schema.field("angle").type)
-        or pa.types.is_large_list(first_schema.field("angle").type)
-    )
-    total = sum(d.count_rows() for _, d in datasets)
-    summary = ScanSummary(destination=os.fspath(destination), files=len(files))
-    bar = Progress("scanning rows", total, progress)
-    seen: set[Any] = set()
-    carry: pa.RecordBatch | None = None
-
-    def run(batch: pa.RecordBatch, writer: pq.ParquetWriter, path: str) -> None:
-        if batch.num_rows == 0:
-            return
-        result = _core.detect(batch, cfg, pass_cols, summary.tightenings)
-        if long_layout:
-            ids = result.column("tightening_id").to_pylist()
-            repeated = seen.intersection(ids)
-            if repeated:
-                raise SchemaError(
-                    f"tightening {next(iter(repeated))!r} appears again after other tightenings in "
-                    f"{path}: stream the long layout grouped by tightening_id, or use detect_batch",
-                    "tightening_id",
-                )
-            seen.update(ids)
-        if result.schema != out_schema:
-            try:
-                result = result.cast(out_schema)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
-                raise SchemaError(f"{path} has columns of other types than the first file: {e}") from e
-        writer.write_table(result)
-        summary.tightenings += result.num_rows
-        summary.samples += int(pc.sum(result.column("n_samples")).as_py() or 0)
-        summary.changes += int(pc.sum(pc.cast(pc.fill_null(result.column("change_detected"), False), pa.int64())).as_py() or 0)
-        for item in pc.value_counts(pc.utf8_slice_codeunits(result.column("status"), 0, 64)).to_pylist():
-            code = item["values"].split(":")[0]
-            summary.status_counts[code] = summary.status_counts.get(code, 0) + item["counts"]
-
-    try:
-        with pq.ParquetWriter(os.fspath(destination), out_schema) as writer:
-            for path, dataset in datasets:
-                for batch in _batches(path, dataset, batch_size):
-                    bar.advance(batch.num_rows)
-                    if long_layout:
-                        if carry is not None and carry.num_rows:
-                            batch = pa.Table.from_batches([carry, batch]).combine_chunks().to_batches()[0]
-                        batch, carry = _split_trailing_tightening(batch)
-                    run(batch, writer, path)
-            if carry is not None:
-                run(carry, writer, files[-1])
-    finally:
-        bar.close()
-    summary.seconds = time.perf_counter() - started
-    return summary
-
-
-def read_results(path: PathLike) -> pa.Table:
-    """Reads a results file written by :func:`scan_parquet`."""
-    return pq.read_table(os.fspath(path))
 
 
 def _iter_chunks(n: int, chunk: int) -> Iterable[tuple[int, int]]:

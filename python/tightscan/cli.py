@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -11,7 +12,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from ._api import ScanSummary, scan_parquet, simulate
+from ._api import simulate
+from ._scan import ScanSummary, read_results, scan_parquet
 from .config import (
     BlockConfig,
     CusumConfig,
@@ -20,7 +22,7 @@ from .config import (
     ElasticZoneConfig,
     ResidualTestConfig,
 )
-from .exceptions import TightscanError
+from .exceptions import InvalidParameterError, TightscanError
 from .rexroth import write_rexroth
 
 SIMULATE_CHUNK = 10_000
@@ -131,18 +133,76 @@ def _strategy_table(results: pa.Table, truth: pa.Table | None) -> pa.Table | Non
     return pa.Table.from_pylist(rows)
 
 
+_FILTER_TERM = re.compile(r"^\s*([A-Za-z_][\w.]*)\s*(==|!=|>=|<=|=|>|<|\s+in\s+)\s*(.*?)\s*$")
+
+
+def _filter_value(text: str) -> object:
+    """``'B'`` or ``"B"`` a string; ``12`` an integer, ``1.5`` a float; anything else as written."""
+    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
+        return text[1:-1]
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def parse_filter(terms: Sequence[str]) -> pc.Expression:
+    """``--filter`` terms, all of which must hold, as a pyarrow expression pushed to the reader.
+
+    A term is ``COLUMN OP VALUE`` with OP one of ``= == != < <= > >=``, or ``COLUMN in A,B,C``;
+    a value is a number, or text (quote it to keep digits text: ``plant='7'``).
+
+    >>> parse_filter(["station=2", "plant in A,B"]).equals((pc.field("station") == 2) & pc.field("plant").isin(["A", "B"]))
+    True
+    """
+    expression: pc.Expression | None = None
+    for term in terms:
+        m = _FILTER_TERM.match(term)
+        if m is None or not m.group(3):
+            raise ValueError(f"--filter {term!r}: expected COLUMN OP VALUE (OP: = != < <= > >= in), e.g. station=7")
+        column, op, value = m.group(1), m.group(2).strip(), m.group(3)
+        f = pc.field(column)
+        if op == "in":
+            e = f.isin([_filter_value(v.strip()) for v in value.split(",")])
+        else:
+            v = _filter_value(value)
+            e = {"=": f == v, "==": f == v, "!=": f != v, "<": f < v, "<=": f <= v, ">": f > v, ">=": f >= v}[op]
+        expression = e if expression is None else expression & e
+    assert expression is not None
+    return expression
+
+
 def cmd_scan(args: argparse.Namespace) -> int:
     passthrough: Sequence[str] | bool | None = args.passthrough
+    try:
+        row_filter = parse_filter(args.filter) if args.filter else None
+    except ValueError as e:
+        raise InvalidParameterError(str(e), "filter") from None
     summary = scan_parquet(
         args.inputs,
         args.output,
         _config(args),
+        columns=args.columns,
+        filter=row_filter,
         passthrough=passthrough,
         batch_size=args.batch_size,
         progress=False if args.no_progress else None,
+        engine=args.engine,
+        partition_by=args.partition_by,
+        on_bad_file=args.on_bad_file,
+        resume=args.resume,
     )
-    results = pq.read_table(args.output, columns=[c for c in ["tightening_id", "strategy", "change_detected"] if c in pq.read_schema(args.output).names])
-    print_summary(summary, _strategy_table(results, None))
+    try:
+        results = read_results(args.output, columns=["tightening_id", "strategy", "change_detected"])
+    except TightscanError:
+        results = None  # no strategy column passed through: no table by strategy
+    print_summary(summary, _strategy_table(results, None) if results is not None else None)
+    if summary.resumed_files:
+        print(f"{summary.resumed_files:,} input files were complete already (--resume) and not read again")
+    for path, reason in summary.skipped_files:
+        print(f"skipped {path}: {reason}")
     return 0
 
 
@@ -314,9 +374,37 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     scan = sub.add_parser("scan", help="detect changes in Parquet files, write results Parquet")
-    scan.add_argument("inputs", nargs="+", help="Parquet files, directories or globs")
-    scan.add_argument("-o", "--output", required=True, help="results Parquet file")
+    scan.add_argument("inputs", nargs="+", help="Parquet files, directories, globs or URIs (file://, s3://, gs://, abfs://)")
+    scan.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="results: a *.parquet file, or a directory (any other name) with one results file per input file",
+    )
     _add_detect_options(scan)
+    scan.add_argument("--columns", nargs="+", default=None, metavar="COLUMN", help="read only these input columns")
+    scan.add_argument(
+        "--filter",
+        action="append",
+        default=None,
+        metavar="TERM",
+        help="read only rows where COLUMN OP VALUE holds (OP: = != < <= > >= in; repeat: all must hold), "
+        "e.g. --filter station=7 --filter \"day>=20250101\"; hive partitions not matching are not read",
+    )
+    scan.add_argument("--partition-by", nargs="+", default=None, metavar="COLUMN", help="hive directories of the results by these columns")
+    scan.add_argument(
+        "--on-bad-file",
+        choices=["raise", "skip"],
+        default="raise",
+        help="a file that breaks the data contract stops the scan (raise), or is skipped and listed (default %(default)s)",
+    )
+    scan.add_argument("--resume", action="store_true", help="skip input files whose results are complete in the output directory")
+    scan.add_argument(
+        "--engine",
+        choices=["local", "dask", "ray"],
+        default="local",
+        help="where files are scanned: this process, the Dask cluster or Ray (default %(default)s)",
+    )
     scan.set_defaults(func=cmd_scan)
 
     sim = sub.add_parser("simulate", help="write labelled synthetic tightenings as Parquet")

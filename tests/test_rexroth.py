@@ -132,6 +132,12 @@ def test_detect_batch_gives_one_row_per_run(rexroth_s01: pa.Table) -> None:
     codes = Counter(s.split(":")[0] for s in statuses)
     assert "null_tightening" not in codes and "length_mismatch" not in codes
     assert codes["ok"] > 0
+    assert "loosening" not in codes and "flat_signal" not in codes  # real tightenings, all of them
+    # No ok row has its snug angle outside its curve's angles.
+    ok = pc.starts_with(results.column("status"), "ok")
+    snug = results.column("snug_angle").filter(ok).to_numpy()
+    angles = rexroth_s01.column("angle").filter(ok).to_pylist()
+    assert all(min(a) <= s <= max(a) for a, s in zip(angles, snug))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -182,3 +182,15 @@ def test_cli_import_reports_failures_and_duplicates(tmp_path: Path, export_dir: 
     assert "2024-03-01/station-b/CH_000000007003.JSON" in err[0] and "2024-03-02/station-a/Ch_000000007010.json" in err[0]
     assert err[1].startswith("tightscan: error: 2 of 12 files failed to import")
     assert len(err) == 2
+
+
+def test_non_finite_tokens_are_bad_values_in_any_step(tmp_path: Path, rexroth_dir: Path) -> None:
+    text = (rexroth_dir / "runs" / "Ch_000001596334.json").read_text()
+    for k, token in enumerate(["NaN", "-Infinity", "1e400"]):
+        doc = json.loads(text)
+        doc["cycle"] = k
+        doc["tightening steps"][2]["graph"]["torque values"][5] = "TOKEN"
+        (tmp_path / f"Ch_{k}.json").write_text(json.dumps(doc).replace('"TOKEN"', token))
+    status = read_rexroth(tmp_path, progress=False).column("import_status").to_pylist()
+    step = "bad_values: step 3 'Pre-tightening' torque values[5] is"
+    assert status == [f"{step} NaN, not a finite number", f"{step} -Infinity, not a finite number", f"{step} Infinity, not a finite number"]

@@ -32,6 +32,7 @@ that a directory of thousands of exports is never stopped by one bad file.
 
 from __future__ import annotations
 
+import bisect
 import glob
 import json
 import math
@@ -282,11 +283,18 @@ def _packed(values: list[Any], label: str, key: str, has_literals: bool) -> "arr
     except (TypeError, OverflowError):
         j, v = _first_non_number(values)
         raise _ImportProblem("bad_values", f"{label} {key}[{j}] is {json.dumps(v)[:40]}, not a number") from None
-    finite = np.isfinite(np.frombuffer(out, dtype=np.float64))
-    if not finite.all():  # `NaN` / `Infinity` tokens: JSON has no such numbers
-        j = int(np.argmin(finite))
-        raise _ImportProblem("bad_values", f"{label} {key}[{j}] is {json.dumps(out[j])}, not a finite number")
     return out
+
+
+def _check_finite(channels: dict[str, "array[float]"], starts: list[int], labels: list[str], keys: list[dict[str, str]]) -> None:
+    """`NaN` / `Infinity` tokens (and numbers too large for a double) are ``bad_values``: JSON has
+    no such numbers. Checked once per channel of the run, located only when found."""
+    for name, values in channels.items():
+        finite = np.isfinite(np.frombuffer(values, dtype=np.float64))
+        if not finite.all():
+            at = int(np.argmin(finite))
+            i = bisect.bisect_right(starts, at) - 1
+            raise _ImportProblem("bad_values", f"{labels[i]} {keys[i][name]}[{at - starts[i]}] is {json.dumps(values[at])}, not a finite number")
 
 
 def _shift(values: "array[float]", offset: float) -> "array[float]":
@@ -318,6 +326,8 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
     last: dict[str, float] = {}  # last value so far of each restart-checked channel, after offsets
     starts: list[int] = []
     absent: set[str] = set()  # optional channels some step lacks
+    labels: list[str] = []
+    keys: list[dict[str, str]] = []  # per step: channel -> the key it was found under
     for i, step in enumerate(steps):
         if not isinstance(step, dict):
             raise _ImportProblem("bad_values", f"step {i + 1} is a {type(step).__name__}, not an object")
@@ -346,6 +356,8 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
                     "length_mismatch", f"{label} has {n} angle values and {len(values)} {key.replace(' values', '')} values"
                 )
         starts.append(len(step_channel))
+        labels.append(label)
+        keys.append({name: key for name, (key, _) in lists.items()})
         for name, (key, values) in lists.items():
             packed = _packed(values, label, key, has_literals)
             tolerance = _RESTART_TOLERANCE.get(name)
@@ -356,6 +368,8 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
                 last[name] = packed[-1]
             channels[name].extend(packed)
         step_channel.extend(array("i", [i]) * n)
+    present = {k: v for k, v in channels.items() if k not in absent}
+    _check_finite(present, starts, labels, keys)
     last_step = steps[-1]
     meta = {
         "target_torque": _function_nom(last_step, "TF Torque"),
@@ -366,7 +380,7 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
         "step_target_angle": [_function_nom(s, "TF Angle") for s in steps],
         "step_start_index": starts,
     }
-    return meta, {k: v for k, v in channels.items() if k not in absent}, step_channel
+    return meta, present, step_channel
 
 
 def _import_file(path: str, name: str, channel_keys: Sequence[tuple[str, str]]) -> RexrothImport:

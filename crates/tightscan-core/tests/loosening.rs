@@ -13,8 +13,11 @@ use tightscan_core::{DetectConfig, Detector};
 
 const N: usize = 400;
 
-fn batch(curves: &[(Vec<f64>, Vec<f64>)]) -> RecordBatch {
-    let list = |f: &dyn Fn(&(Vec<f64>, Vec<f64>)) -> &Vec<f64>| {
+/// Angle and torque of one curve.
+type Curve = (Vec<f64>, Vec<f64>);
+
+fn batch(curves: &[Curve]) -> RecordBatch {
+    let list = |f: fn(&Curve) -> &Vec<f64>| {
         ListArray::from_iter_primitive::<Float64Type, _, _>(curves.iter().map(|c| Some(f(c).iter().map(|v| Some(*v)).collect::<Vec<_>>())))
     };
     let item = Arc::new(Field::new_list_field(DataType::Float64, true));
@@ -22,7 +25,7 @@ fn batch(curves: &[(Vec<f64>, Vec<f64>)]) -> RecordBatch {
         Field::new("angle", DataType::List(item.clone()), true),
         Field::new("torque", DataType::List(item), true),
     ]);
-    RecordBatch::try_new(Arc::new(schema), vec![Arc::new(list(&|c| &c.0)), Arc::new(list(&|c| &c.1))]).unwrap()
+    RecordBatch::try_new(Arc::new(schema), vec![Arc::new(list(|c| &c.0)), Arc::new(list(|c| &c.1))]).unwrap()
 }
 
 fn angle() -> Vec<f64> {
@@ -36,7 +39,7 @@ fn ripple(i: usize) -> f64 {
 
 /// An unfastening curve as a cordless nutrunner records it: breakaway to -2.57 Nm within the
 /// first degrees, then the torque runs out towards 0 and ends slightly positive (0.07 Nm).
-fn loosening() -> (Vec<f64>, Vec<f64>) {
+fn loosening() -> Curve {
     let a = angle();
     let t = a
         .iter()
@@ -50,13 +53,13 @@ fn loosening() -> (Vec<f64>, Vec<f64>) {
 }
 
 /// A tightening: rundown at 0.1 Nm, then a straight elastic rise to 12 Nm.
-fn tightening(offset: f64) -> (Vec<f64>, Vec<f64>) {
+fn tightening(offset: f64) -> Curve {
     let a = angle();
     let t = a.iter().enumerate().map(|(i, &x)| offset + 0.1 + 0.3 * (x - 20.0).max(0.0) + ripple(i)).collect();
     (a, t)
 }
 
-fn run(curves: &[(Vec<f64>, Vec<f64>)]) -> (Vec<String>, Vec<Option<f64>>) {
+fn run(curves: &[Curve]) -> (Vec<String>, Vec<Option<f64>>) {
     let det = Detector::new(DetectConfig::default()).unwrap();
     let out = det.detect(&batch(curves), &[], 0).unwrap();
     let status = out.column_by_name("status").unwrap().as_string::<i32>();

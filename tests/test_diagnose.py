@@ -270,7 +270,7 @@ def test_cli_reads_a_rexroth_directory(tmp_path: Path, rexroth_dir: Path) -> Non
     doc = json.loads(out.read_text())
     _check_document(doc)
     assert doc["tightenings_in_table"] == 50
-    assert main(["diagnose", str(tmp_path / "nowhere"), "--json", str(out)]) == 2
+    assert main(["diagnose", str(tmp_path / "nowhere"), "--json", str(out)]) == 3  # a data error
 
 
 # ---------------------------------------------------------------------------------------------

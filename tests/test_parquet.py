@@ -77,7 +77,7 @@ def test_cli_simulate_scan_and_errors(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main(["scan", str(data), "-o", str(out), "--no-progress"]) == 0
     assert pq.read_metadata(out).num_rows == 120
     assert "tightenings" in capsys.readouterr().out
-    assert main(["scan", str(tmp_path / "missing.parquet"), "-o", str(out)]) == 2
+    assert main(["scan", str(tmp_path / "missing.parquet"), "-o", str(out)]) == 3  # a data error
     assert "missing.parquet" in capsys.readouterr().err
     assert main(["scan", str(data), "-o", str(out), "--kappa", "-1"]) == 2
 

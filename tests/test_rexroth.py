@@ -132,6 +132,12 @@ def test_detect_batch_gives_one_row_per_run(rexroth_s01: pa.Table) -> None:
     codes = Counter(s.split(":")[0] for s in statuses)
     assert "null_tightening" not in codes and "length_mismatch" not in codes
     assert codes["ok"] > 0
+    assert "loosening" not in codes and "flat_signal" not in codes  # real tightenings, all of them
+    # No ok row has its snug angle outside its curve's angles.
+    ok = pc.starts_with(results.column("status"), "ok")
+    snug = results.column("snug_angle").filter(ok).to_numpy()
+    angles = rexroth_s01.column("angle").filter(ok).to_pylist()
+    assert all(min(a) <= s <= max(a) for a, s in zip(angles, snug))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -360,7 +366,9 @@ def test_cli_import_rexroth(tmp_path: Path, rexroth_dir: Path, rexroth_s01: pa.T
     out = tmp_path / "out.parquet"
     argv = ["import", "rexroth", str(src), "-o", str(out), "--labels", str(rexroth_dir / "labels.csv"), "--on", "cycle=run_id", "--no-progress"]
     assert main(argv) == 0
-    assert "imported 50 Rexroth runs" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "50 Rexroth runs written to" in captured.out and "50 imported, 0 failed, 0 files skipped" in captured.out
+    assert captured.err == ""
     written = pq.read_table(out)
     assert written.num_rows == 50
     assert written.column("workpiece_usage").null_count == 0
@@ -368,13 +376,17 @@ def test_cli_import_rexroth(tmp_path: Path, rexroth_dir: Path, rexroth_s01: pa.T
     assert written.equals(_as_parquet(expected))
 
     (src / "Ch_000000000009.json").write_text("{")
-    assert main(["import", "rexroth", str(src), "-o", str(out), "--no-progress", "--keep-redundant"]) == 0
-    printed = capsys.readouterr().out
-    assert "imported 51 Rexroth runs" in printed and "1 with an import_status other than ok" in printed
-    assert "unreadable_json: 1" in printed
-    assert "angle_red" in pq.read_schema(out).names
+    (src / "README.txt").write_text("not an export")
+    # A failed file is a data error (exit 3), named on stderr; its row is written all the same.
+    assert main(["import", "rexroth", str(src), "-o", str(out), "--no-progress", "--keep-redundant"]) == 3
+    captured = capsys.readouterr()
+    assert "51 Rexroth runs written to" in captured.out and "50 imported, 1 failed (unreadable_json: 1), 1 files skipped" in captured.out
+    assert "  failed: Ch_000000000009.json: unreadable_json: " in captured.out
+    assert captured.err.startswith("tightscan: error: 1 of 51 files failed to import (first: Ch_000000000009.json: unreadable_json")
+    assert len(captured.err.splitlines()) == 1
+    assert "angle_red" in pq.read_schema(out).names and pq.read_metadata(out).num_rows == 51
 
-    assert main(["import", "rexroth", str(tmp_path / "missing"), "-o", str(out)]) == 2
+    assert main(["import", "rexroth", str(tmp_path / "missing"), "-o", str(out)]) == 3
     assert "missing" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["import", "rexroth", str(src), "-o", str(out), "--on", "=run_id"])

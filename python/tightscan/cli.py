@@ -1,10 +1,16 @@
-"""Command line: `tightscan scan | simulate | demo | import rexroth | diagnose`."""
+"""Command line: `tightscan scan | simulate | demo | import rexroth | diagnose`.
+
+Exit codes: 0 done; 1 changes found, with `scan --fail-on-change`; 2 usage (bad arguments or
+parameter values); 3 data (a file or column that breaks the data contract, files that failed to
+import). Errors are one line on stderr naming the file or column, never a traceback.
+"""
 
 from __future__ import annotations
 
 import argparse
 import re
 import sys
+import warnings
 from pathlib import Path
 from typing import Sequence
 
@@ -22,8 +28,13 @@ from .config import (
     ElasticZoneConfig,
     ResidualTestConfig,
 )
-from .exceptions import InvalidParameterError, TightscanError
-from .rexroth import write_rexroth
+from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
+from .rexroth import DuplicateRunWarning, import_summary, rexroth_files, write_rexroth
+
+EXIT_OK = 0
+EXIT_CHANGES = 1
+EXIT_USAGE = 2
+EXIT_DATA = 3
 
 SIMULATE_CHUNK = 10_000
 # Switchable effects of the simulator (`--effect NAME=VALUE`), with their units; 0 is off.
@@ -203,7 +214,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
         print(f"{summary.resumed_files:,} input files were complete already (--resume) and not read again")
     for path, reason in summary.skipped_files:
         print(f"skipped {path}: {reason}")
-    return 0
+    return EXIT_CHANGES if args.fail_on_change and summary.changes else EXIT_OK
 
 
 def write_simulation(n: int, seed: int, output: str, truth_output: str | None, **kwargs: object) -> None:
@@ -291,25 +302,42 @@ def _join_keys(text: str) -> tuple[str, str]:
 
 
 def cmd_import_rexroth(args: argparse.Namespace) -> int:
-    rows = write_rexroth(
-        args.inputs,
-        args.output,
-        labels=args.labels,
-        on=args.on,
-        keep_redundant=args.keep_redundant,
-        progress=False if args.no_progress else None,
-        compression=args.compression,
+    """Writes every file's row (failed ones with their import_status), then prints what became
+    of the files; exits 3 when any file failed, so that a script cannot miss it."""
+    files = rexroth_files(args.inputs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DuplicateRunWarning)  # reported in the summary below
+        rows = write_rexroth(
+            files,
+            args.output,
+            labels=args.labels,
+            on=args.on,
+            keep_redundant=args.keep_redundant,
+            progress=False if args.no_progress else None,
+            compression=args.compression,
+        )
+    written = pq.read_table(args.output, columns=["tightening_id", "file_name", "import_status", "duplicate_id"])
+    s = import_summary(written, files.skipped)
+    detail = f" ({', '.join(f'{c}: {n:,}' for c, n in sorted(s.failure_codes.items()))})" if s.failure_codes else ""
+    print(
+        f"{rows:,} Rexroth runs written to {args.output}: {s.imported:,} imported, {s.failed:,} failed{detail}, "
+        f"{s.skipped:,} files skipped (not *.json)"
     )
-    statuses = pq.read_table(args.output, columns=["import_status"]).column("import_status").to_pylist()
-    codes: dict[str, int] = {}
-    for status in statuses:
-        if status != "ok":
-            code = str(status).split(":")[0]
-            codes[code] = codes.get(code, 0) + 1
-    bad = sum(codes.values())
-    detail = f" ({', '.join(f'{c}: {n:,}' for c, n in sorted(codes.items()))})" if codes else ""
-    print(f"imported {rows:,} Rexroth runs to {args.output}; {bad:,} with an import_status other than ok{detail}")
-    return 0
+    for name, status in s.first_failures:
+        print(f"  failed: {name}: {status}")
+    if s.duplicates:
+        shown = "; ".join(f"{tid}: {', '.join(names)}" for tid, names in list(s.duplicates.items())[:5])
+        more = f"; and {len(s.duplicates) - 5:,} more" if len(s.duplicates) > 5 else ""
+        print(f"warning: {len(s.duplicates):,} runs come from more than one file (column duplicate_id): {shown}{more}", file=sys.stderr)
+    if s.failed:
+        first_name, first_status = s.first_failures[0]
+        print(
+            f"tightscan: error: {s.failed:,} of {rows:,} files failed to import (first: {first_name}: {first_status}); "
+            "their rows are written with null channels and their import_status",
+            file=sys.stderr,
+        )
+        return EXIT_DATA
+    return EXIT_OK
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
@@ -405,6 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="local",
         help="where files are scanned: this process, the Dask cluster or Ray (default %(default)s)",
     )
+    scan.add_argument("--fail-on-change", action="store_true", help="exit with 1 when a change is found (for CI and scripts)")
     scan.set_defaults(func=cmd_scan)
 
     sim = sub.add_parser("simulate", help="write labelled synthetic tightenings as Parquet")
@@ -444,7 +473,9 @@ def build_parser() -> argparse.ArgumentParser:
     imp = sub.add_parser("import", help="convert tightening-tool exports into the tightening table (Parquet)")
     formats = imp.add_subparsers(dest="format", required=True, metavar="FORMAT")
     rex = formats.add_parser("rexroth", help="Bosch Rexroth JSON exports, one file per run (docs/rexroth-import.md)")
-    rex.add_argument("inputs", nargs="+", metavar="DIR_OR_FILES", help="JSON files, directories (their *.json) or globs")
+    rex.add_argument(
+        "inputs", nargs="+", metavar="DIR_OR_FILES", help="JSON files, directories (every *.json below them, any case) or globs"
+    )
     rex.add_argument("-o", "--output", required=True, help="tightening table Parquet file")
     rex.add_argument("--labels", default=None, help="CSV of labels to left-join (one row per run)")
     rex.add_argument(
@@ -487,13 +518,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(e: BaseException) -> str:
+    """The error as one line, naming the file or column when its message does not."""
+    text = " ".join(str(e).split())
+    where = None
+    if isinstance(e, DataFileError):
+        where = e.path
+    elif isinstance(e, SchemaError):
+        where = e.column
+    elif isinstance(e, OSError):
+        where = e.filename if isinstance(e.filename, str) else None
+    if where and where not in text:
+        label = "column" if isinstance(e, SchemaError) else "file"
+        text = f"{text} ({label} {where!r})"
+    return text
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Runs one command; returns the exit code (module docstring). argparse exits with 2 itself."""
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except (TightscanError, OSError) as e:
-        print(f"tightscan: error: {e}", file=sys.stderr)
-        return 2
+    except InvalidParameterError as e:  # a value given on the command line is out of range
+        print(f"tightscan: error: {_one_line(e)}", file=sys.stderr)
+        return EXIT_USAGE
+    except (TightscanError, OSError, pa.ArrowException) as e:  # DataFileError, SchemaError, unreadable files
+        print(f"tightscan: error: {_one_line(e)}", file=sys.stderr)
+        return EXIT_DATA
     except KeyboardInterrupt:
         return 130
 

@@ -32,14 +32,18 @@ that a directory of thousands of exports is never stopped by one bad file.
 
 from __future__ import annotations
 
+import bisect
+import glob
 import json
+import math
 import os
 import re
+import warnings
 from array import array
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable, Sequence, Union
+from typing import Any, Callable, Iterator, Sequence, Union
 
 import numpy as np
 import pyarrow as pa
@@ -47,11 +51,22 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from ._paths import expand_paths
 from ._progress import Progress
 from .exceptions import DataFileError, InvalidParameterError, SchemaError
 
-__all__ = ["read_rexroth", "write_rexroth", "join_labels", "rexroth_schema", "RexrothImport", "STATUS_CODES"]
+__all__ = [
+    "read_rexroth",
+    "write_rexroth",
+    "join_labels",
+    "rexroth_schema",
+    "rexroth_files",
+    "import_summary",
+    "RexrothFiles",
+    "RexrothImport",
+    "ImportSummary",
+    "DuplicateRunWarning",
+    "STATUS_CODES",
+]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -62,16 +77,20 @@ try:  # optional: several times faster than the standard library, never required
     _loads = orjson.loads
 except ImportError:  # pragma: no cover - depends on the environment
     _loads = json.loads
+# The standard library reads the `NaN` / `Infinity` tokens some controllers write (orjson
+# refuses them); they then get the `bad_values` status like any value that is not a number.
+_loads_with_nan: Callable[[bytes], Any] = json.loads
 # json.JSONDecodeError and orjson.JSONDecodeError are ValueErrors; bad UTF-8 is one too.
 _JSON_ERRORS: tuple[type[Exception], ...] = (ValueError, RecursionError)
 
 #: ``import_status`` codes, besides ``ok``. Stable: downstream code may match on them.
 STATUS_CODES: dict[str, str] = {
     "unreadable_json": "the file cannot be read, is not JSON, or its top level is not an object",
-    "missing_field": "`tightening steps`, a step's `graph` or one of its value lists is absent",
+    "missing_field": "`tightening steps`, a step's `graph`, or its `angle values` or `torque values` are absent",
     "no_steps": "`tightening steps` is an empty list",
     "length_mismatch": "the value lists of one step differ in length",
-    "bad_values": "a value list holds something that is not a number, or a field has the wrong type",
+    "bad_values": "a value list holds something that is not a finite number (NaN, Infinity, a string, null, "
+    "true/false), or a field has the wrong type",
 }
 
 # A step whose first value lies this far below the previous step's last value restarted its axis
@@ -81,14 +100,17 @@ STATUS_CODES: dict[str, str] = {
 ANGLE_RESTART_TOLERANCE_DEG = 1.0
 TIME_RESTART_TOLERANCE_S = 1e-6
 
-# (output column, key in a step's graph); the first four always, the others on request.
+# (output column, key in a step's graph); the first four always, the others on request. Only
+# angle and torque are required: detection needs nothing else, and exports differ in the rest
+# (a nutrunner's loosening curves carry angle, torque and time only). A graph may also name a
+# channel without the " values" suffix (`angle`, `torque`).
 _CHANNELS: tuple[tuple[str, str], ...] = (
     ("time", "time values"),
     ("angle", "angle values"),
     ("torque", "torque values"),
     ("gradient", "gradient values"),
 )
-_ANGLE = 1  # position of angle in _CHANNELS
+_REQUIRED = ("angle", "torque")
 _REDUNDANT: tuple[tuple[str, str], ...] = (("torque_red", "torqueRed values"), ("angle_red", "angleRed values"))
 _RESTART_TOLERANCE = {"time": TIME_RESTART_TOLERANCE_S, "angle": ANGLE_RESTART_TOLERANCE_DEG}
 
@@ -97,6 +119,7 @@ _METADATA_FIELDS: tuple[pa.Field, ...] = (
     pa.field("tightening_id", pa.int64()),
     pa.field("file_name", pa.utf8()),
     pa.field("import_status", pa.utf8()),
+    pa.field("duplicate_id", pa.bool_()),
     pa.field("result", pa.utf8()),
     pa.field("cycle", pa.int64()),
     pa.field("date", pa.timestamp("s")),
@@ -192,19 +215,21 @@ def _as_int(v: object) -> int | None:
 
 
 def _as_float(v: object) -> float | None:
+    """A finite number, else None (a `NaN` in the metadata is as good as absent)."""
     if isinstance(v, bool):
         return None
+    out: float | None = None
     if isinstance(v, (int, float)):
         try:
-            return float(v)
+            out = float(v)
         except OverflowError:
             return None
-    if isinstance(v, str):
+    elif isinstance(v, str):
         try:
-            return float(v)
+            out = float(v)
         except ValueError:
             return None
-    return None
+    return out if out is not None and math.isfinite(out) else None
 
 
 def _as_date(v: object) -> datetime | None:
@@ -261,10 +286,33 @@ def _packed(values: list[Any], label: str, key: str, has_literals: bool) -> "arr
     return out
 
 
+def _check_finite(channels: dict[str, "array[float]"], starts: list[int], labels: list[str], keys: list[dict[str, str]]) -> None:
+    """`NaN` / `Infinity` tokens (and numbers too large for a double) are ``bad_values``: JSON has
+    no such numbers. Checked once per channel of the run, located only when found."""
+    for name, values in channels.items():
+        samples = np.frombuffer(values, dtype=np.float64)
+        if math.isfinite(float(np.add.reduce(samples))):  # one pass; a sum is finite only if all are
+            continue
+        finite = np.isfinite(samples)
+        if not finite.all():  # else finite values whose sum overflowed
+            at = int(np.argmin(finite))
+            i = bisect.bisect_right(starts, at) - 1
+            raise _ImportProblem("bad_values", f"{labels[i]} {keys[i][name]}[{at - starts[i]}] is {json.dumps(values[at])}, not a finite number")
+
+
 def _shift(values: "array[float]", offset: float) -> "array[float]":
     shifted = array("d")
     shifted.frombytes((np.frombuffer(values, dtype=np.float64) + offset).tobytes())
     return shifted
+
+
+def _channel_values(graph: dict[str, Any], key: str) -> tuple[str, Any] | None:
+    """The graph's entry for ``key`` (``angle values``), or for its bare name (``angle``)."""
+    for candidate in (key, key.removesuffix(" values")):
+        values = graph.get(candidate)
+        if values is not None:
+            return candidate, values
+    return None
 
 
 def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has_literals: bool) -> tuple[dict[str, Any], dict[str, "array[float]"], "array[int]"]:
@@ -280,6 +328,9 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
     step_channel = array("i")
     last: dict[str, float] = {}  # last value so far of each restart-checked channel, after offsets
     starts: list[int] = []
+    absent: set[str] = set()  # optional channels some step lacks
+    labels: list[str] = []
+    keys: list[dict[str, str]] = []  # per step: channel -> the key it was found under
     for i, step in enumerate(steps):
         if not isinstance(step, dict):
             raise _ImportProblem("bad_values", f"step {i + 1} is a {type(step).__name__}, not an object")
@@ -289,22 +340,28 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
             raise _ImportProblem("missing_field", f"{label} has no 'graph'")
         if not isinstance(graph, dict):
             raise _ImportProblem("bad_values", f"{label} 'graph' is a {type(graph).__name__}, not an object")
-        lists: list[list[Any]] = []
-        for _, key in channel_keys:
-            values = graph.get(key)
-            if values is None:
-                raise _ImportProblem("missing_field", f"{label} has no '{key}'")
+        lists: dict[str, tuple[str, list[Any]]] = {}
+        for name, key in channel_keys:
+            found = _channel_values(graph, key)
+            if found is None:
+                if name in _REQUIRED:
+                    raise _ImportProblem("missing_field", f"{label} has no '{key}'")
+                absent.add(name)  # optional: the whole row's channel becomes null
+                continue
+            used_key, values = found
             if not isinstance(values, list):
-                raise _ImportProblem("bad_values", f"{label} '{key}' is a {type(values).__name__}, not a list")
-            lists.append(values)
-        n = len(lists[_ANGLE])  # angle is the engine's axis: the others are measured against it
-        for (_, key), values in zip(channel_keys, lists):
+                raise _ImportProblem("bad_values", f"{label} '{used_key}' is a {type(values).__name__}, not a list")
+            lists[name] = (used_key, values)
+        n = len(lists["angle"][1])  # angle is the engine's axis: the others are measured against it
+        for key, values in lists.values():
             if len(values) != n:
                 raise _ImportProblem(
                     "length_mismatch", f"{label} has {n} angle values and {len(values)} {key.replace(' values', '')} values"
                 )
         starts.append(len(step_channel))
-        for (name, key), values in zip(channel_keys, lists):
+        labels.append(label)
+        keys.append({name: key for name, (key, _) in lists.items()})
+        for name, (key, values) in lists.items():
             packed = _packed(values, label, key, has_literals)
             tolerance = _RESTART_TOLERANCE.get(name)
             if tolerance is not None and n:
@@ -314,6 +371,8 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
                 last[name] = packed[-1]
             channels[name].extend(packed)
         step_channel.extend(array("i", [i]) * n)
+    present = {k: v for k, v in channels.items() if k not in absent}
+    _check_finite(present, starts, labels, keys)
     last_step = steps[-1]
     meta = {
         "target_torque": _function_nom(last_step, "TF Torque"),
@@ -324,11 +383,10 @@ def _parse_run(doc: dict[str, Any], channel_keys: Sequence[tuple[str, str]], has
         "step_target_angle": [_function_nom(s, "TF Angle") for s in steps],
         "step_start_index": starts,
     }
-    return meta, channels, step_channel
+    return meta, present, step_channel
 
 
-def _import_file(path: str, channel_keys: Sequence[tuple[str, str]]) -> RexrothImport:
-    name = os.path.basename(path)
+def _import_file(path: str, name: str, channel_keys: Sequence[tuple[str, str]]) -> RexrothImport:
     try:
         with open(path, "rb") as fh:
             raw = fh.read()
@@ -337,7 +395,12 @@ def _import_file(path: str, channel_keys: Sequence[tuple[str, str]]) -> RexrothI
     try:
         doc = _loads(raw)
     except _JSON_ERRORS as e:
-        return RexrothImport(name, _id_from_name(name), f"unreadable_json: {str(e)[:200]}")
+        try:
+            if _loads is _loads_with_nan or not (b"NaN" in raw or b"Infinity" in raw):
+                raise
+            doc = _loads_with_nan(raw)
+        except _JSON_ERRORS:
+            return RexrothImport(name, _id_from_name(name), f"unreadable_json: {str(e)[:200]}")
     if not isinstance(doc, dict):
         return RexrothImport(name, _id_from_name(name), f"unreadable_json: top level is a {type(doc).__name__}, not an object")
     cycle = _as_int(doc.get("cycle"))
@@ -365,13 +428,97 @@ def _import_file(path: str, channel_keys: Sequence[tuple[str, str]]) -> RexrothI
 # Many files
 
 
-def _expand(paths: PathLike | Sequence[PathLike]) -> list[str]:
-    """Directories (their ``*.json``, sorted) and globs (sorted) expand; listed files keep their
-    order, so a caller's list comes back row for row."""
+@dataclass(frozen=True)
+class RexrothFiles:
+    """The export files an import reads, and the files it passed over.
+
+    ``paths`` are the files in import order, ``names`` what each row's ``file_name`` becomes
+    (the path below the directory searched, or the base name of a file given), ``skipped`` the
+    files found in the searched directories that are not ``*.json``.
+    """
+
+    paths: tuple[str, ...]
+    names: tuple[str, ...]
+    skipped: tuple[str, ...] = ()
+
+
+def _is_json_name(name: str) -> bool:
+    # Controllers and file shares disagree on case: `Ch_1.json` and `CH_1.JSON` are both exports.
+    return name.lower().endswith(".json")
+
+
+def _walk(directory: str) -> Iterator[tuple[str, str]]:
+    """(path, path relative to ``directory`` with ``/``) of every file below ``directory``, in
+    sub-directories too, in sorted order. Strings, not Paths: 5,000 Path objects cost more than
+    the walk."""
+    for root, dirs, files in os.walk(directory):
+        dirs.sort()
+        prefix = os.path.relpath(root, directory).replace(os.sep, "/")
+        prefix = "" if prefix == "." else prefix + "/"
+        for f in sorted(files):
+            yield os.path.join(root, f), prefix + f
+
+
+def rexroth_files(paths: PathLike | Sequence[PathLike] | RexrothFiles) -> RexrothFiles:
+    """The files :func:`read_rexroth` reads for ``paths``.
+
+    A directory gives every ``*.json`` below it, in sub-directories too, the extension matched
+    in any case (``.json``, ``.JSON``), sorted by path; a glob its matches (sorted); a file
+    itself; a list keeps its order, so a caller's list comes back row for row. Other files in
+    a searched directory are counted as ``skipped``.
+
+    Raises :class:`DataFileError` naming a path that does not exist or holds no export.
+
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> (folder / "line2").mkdir()
+    >>> for name in ["Ch_1.json", "line2/CH_2.JSON", "notes.txt"]:
+    ...     _ = (folder / name).write_text("{}")
+    >>> found = rexroth_files(folder)
+    >>> found.names, [Path(p).name for p in found.skipped]
+    (('Ch_1.json', 'line2/CH_2.JSON'), ['notes.txt'])
+    """
+    if isinstance(paths, RexrothFiles):
+        return paths
     items = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not items:
         raise DataFileError("no input files given", "")
-    return expand_paths(items, "*.json", recursive=False)
+    found: list[str] = []
+    names: list[str] = []
+    skipped: list[str] = []
+    for item in items:
+        text = os.fspath(item)
+        path = Path(text)
+        if path.is_dir():
+            n_before = len(found)
+            for file_path, relative in _walk(text):
+                if _is_json_name(relative):
+                    found.append(file_path)
+                    names.append(relative)
+                else:
+                    skipped.append(file_path)
+            if len(found) == n_before:
+                raise DataFileError(f"no .json files in directory {text} or below it", text)
+        elif path.is_file():
+            found.append(text)
+            names.append(path.name)
+        elif glob.has_magic(text):
+            matches = sorted(m for m in glob.glob(text, recursive=True) if os.path.isfile(m))
+            if not matches:
+                raise DataFileError(f"no files match {text}", text)
+            found.extend(matches)
+            names.extend(os.path.basename(m) for m in matches)
+        else:
+            raise DataFileError(f"no such file or directory: {text}", text)
+    return RexrothFiles(tuple(found), tuple(names), tuple(skipped))
+
+
+def _duplicate_ids(ids: list[int | None]) -> list[bool]:
+    counts: dict[int, int] = {}
+    for i in ids:
+        if i is not None:
+            counts[i] = counts.get(i, 0) + 1
+    return [i is not None and counts[i] > 1 for i in ids]
 
 
 def _list_array(lengths: list[int | None], values: pa.Array) -> pa.Array:
@@ -391,16 +538,20 @@ def _build_table(rows: list[RexrothImport], keep_redundant: bool) -> pa.Table:
         "tightening_id": pa.array([r.tightening_id for r in rows], pa.int64()),
         "file_name": pa.array([r.file_name for r in rows], pa.utf8()),
         "import_status": pa.array([r.import_status for r in rows], pa.utf8()),
+        "duplicate_id": pa.array(_duplicate_ids([r.tightening_id for r in rows]), pa.bool_()),
     }
-    for f in _METADATA_FIELDS[3:]:
+    for f in _METADATA_FIELDS[4:]:
         columns[f.name] = pa.array([r.meta.get(f.name) for r in rows], f.type)
     lengths = [len(r.step) if r.step is not None else None for r in rows]
     for name, _ in _CHANNELS + (_REDUNDANT if keep_redundant else ()):
         flat = array("d")
-        for r in rows:
-            if r.channels is not None:
-                flat.extend(r.channels[name])
-        columns[name] = _list_array(lengths, pa.array(np.frombuffer(flat, dtype=np.float64)))
+        channel_lengths: list[int | None] = []
+        for r, n in zip(rows, lengths):
+            samples = r.channels.get(name) if r.channels is not None else None
+            channel_lengths.append(None if samples is None else n)
+            if samples is not None:
+                flat.extend(samples)
+        columns[name] = _list_array(channel_lengths, pa.array(np.frombuffer(flat, dtype=np.float64)))
     steps = array("i")
     for r in rows:
         if r.step is not None:
@@ -461,8 +612,77 @@ def join_labels(table: pa.Table, labels: PathLike | pa.Table, on: tuple[str, str
     return out
 
 
+class DuplicateRunWarning(UserWarning):
+    """Two or more imported files carry the same run (the same ``tightening_id``)."""
+
+
+@dataclass(frozen=True)
+class ImportSummary:
+    """What an import made of its files: counts, the first failures, the duplicate runs.
+
+    >>> table = pa.table({"tightening_id": [1, 2, 2, 3], "file_name": ["a", "b", "c", "d"],
+    ...     "import_status": ["ok", "ok", "ok", "no_steps: 'tightening steps' is empty"],
+    ...     "duplicate_id": [False, True, True, False]})
+    >>> s = import_summary(table, skipped=("README.txt",))
+    >>> s.imported, s.failed, s.skipped, s.duplicates
+    (3, 1, 1, {2: ('b', 'c')})
+    """
+
+    imported: int
+    failed: int
+    skipped: int
+    #: ``import_status`` code -> files with it.
+    failure_codes: dict[str, int]
+    #: The first few failures as (file_name, import_status), in import order.
+    first_failures: tuple[tuple[str, str], ...]
+    #: ``tightening_id`` -> the files that carry it, for every id found more than once.
+    duplicates: dict[int, tuple[str, ...]]
+
+
+def import_summary(table: pa.Table, skipped: Sequence[str] = (), first: int = 5) -> ImportSummary:
+    """Counts of an imported table (:func:`read_rexroth`, or the Parquet it wrote): rows with
+    ``import_status`` ok, the others (with their ``first`` reasons), ``skipped`` files, and the
+    runs that more than one file carries."""
+    statuses = table.column("import_status").to_pylist()
+    names = table.column("file_name").to_pylist()
+    codes: dict[str, int] = {}
+    failures: list[tuple[str, str]] = []
+    for name, status in zip(names, statuses):
+        if status != "ok":
+            codes[str(status).split(":")[0]] = codes.get(str(status).split(":")[0], 0) + 1
+            if len(failures) < first:
+                failures.append((str(name), str(status)))
+    duplicates: dict[int, list[str]] = {}
+    if "duplicate_id" in table.column_names:
+        marked = table.column("duplicate_id").to_pylist()
+        for tid, name, dup in zip(table.column("tightening_id").to_pylist(), names, marked):
+            if dup:
+                duplicates.setdefault(int(tid), []).append(str(name))
+    failed = sum(codes.values())
+    return ImportSummary(
+        imported=len(statuses) - failed,
+        failed=failed,
+        skipped=len(skipped),
+        failure_codes=codes,
+        first_failures=tuple(failures),
+        duplicates={k: tuple(v) for k, v in duplicates.items()},
+    )
+
+
+def _warn_duplicates(table: pa.Table) -> None:
+    duplicates = import_summary(table).duplicates
+    if duplicates:
+        ids = ", ".join(f"{tid} ({' and '.join(files[:3])}{' ...' if len(files) > 3 else ''})" for tid, files in list(duplicates.items())[:5])
+        more = f" and {len(duplicates) - 5:,} more" if len(duplicates) > 5 else ""
+        warnings.warn(
+            f"{len(duplicates):,} runs are imported from more than one file (column duplicate_id): {ids}{more}",
+            DuplicateRunWarning,
+            stacklevel=3,
+        )
+
+
 def read_rexroth(
-    paths: PathLike | Sequence[PathLike],
+    paths: PathLike | Sequence[PathLike] | RexrothFiles,
     *,
     labels: PathLike | pa.Table | None = None,
     on: tuple[str, str] = ("cycle", "run_id"),
@@ -471,35 +691,40 @@ def read_rexroth(
 ) -> pa.Table:
     """Reads Rexroth JSON exports into the nested tightening table, one row per file.
 
-    ``paths`` is a file, a directory (every ``*.json`` in it, sorted), a glob, or a list of them.
-    Channels ``time`` [s], ``angle`` [deg], ``torque`` [Nm], ``gradient`` [Nm/deg] and ``step``
-    (0-based step number) are the steps' graphs concatenated; an axis that restarts at a step
-    is offset so that the step starts where the previous one ended. A file that cannot be
-    imported keeps its row with null channels and an ``import_status`` of ``code: detail``
-    (:data:`STATUS_CODES`). ``labels`` (a CSV file or a table) is left-joined on ``on``
-    (:func:`join_labels`). ``keep_redundant`` adds the second transducer's ``torque_red`` and
-    ``angle_red``. A progress bar shows on an interactive terminal (``progress`` forces it).
+    ``paths`` is a file, a directory (every ``*.json`` below it, any case, sorted), a glob, or a
+    list of them (:func:`rexroth_files`). Channels ``time`` [s], ``angle`` [deg], ``torque``
+    [Nm], ``gradient`` [Nm/deg] and ``step`` (0-based step number) are the steps' graphs
+    concatenated; an axis that restarts at a step is offset so that the step starts where the
+    previous one ended. Only angle and torque are required: a run without ``time values`` or
+    ``gradient values`` gets a null list there. A file that cannot be imported keeps its row
+    with null channels and an ``import_status`` of ``code: detail`` (:data:`STATUS_CODES`).
+    Rows whose ``tightening_id`` another file carries too are marked in ``duplicate_id``
+    and named in a :class:`DuplicateRunWarning`; both rows are kept, never merged.
+    ``labels`` (a CSV file or a table) is left-joined on ``on`` (:func:`join_labels`).
+    ``keep_redundant`` adds the second transducer's ``torque_red`` and ``angle_red``. A
+    progress bar shows on an interactive terminal (``progress`` forces it).
 
     Raises :class:`DataFileError` naming a path that does not exist or holds no ``*.json``.
     """
-    files = _expand(paths)
+    files = rexroth_files(paths)
     channel_keys = _CHANNELS + (_REDUNDANT if keep_redundant else ())
-    bar = Progress("importing Rexroth runs", len(files), progress)
+    bar = Progress("importing Rexroth runs", len(files.paths), progress)
     rows: list[RexrothImport] = []
     try:
-        for path in files:
-            rows.append(_import_file(path, channel_keys))
+        for path, name in zip(files.paths, files.names):
+            rows.append(_import_file(path, name, channel_keys))
             bar.advance()
     finally:
         bar.close()
     table = _build_table(rows, keep_redundant)
+    _warn_duplicates(table)
     if labels is not None:
         table = join_labels(table, labels, on)
     return table
 
 
 def write_rexroth(
-    paths: PathLike | Sequence[PathLike],
+    paths: PathLike | Sequence[PathLike] | RexrothFiles,
     output: PathLike,
     *,
     labels: PathLike | pa.Table | None = None,

@@ -51,6 +51,15 @@ pub enum TighteningStatus {
         /// Channel that is constant.
         channel: &'static str,
     },
+    /// The largest torque in magnitude is negative: an unfastening (loosening) curve, or a
+    /// tightening recorded with the opposite sign convention. Detection assumes a tightening
+    /// whose torque rises with angle, so none is attempted.
+    Loosening {
+        /// The most negative torque [Nm].
+        peak_torque: f64,
+        /// Angle at that torque [deg].
+        peak_angle: f64,
+    },
     /// The null model of the window (a straight elastic line) does not fit, and a smooth curve
     /// explains the window better than any break: a change cannot be told from the misfit.
     ModelMisfit {
@@ -82,6 +91,7 @@ impl TighteningStatus {
             Self::NonFinite { .. } => "non_finite",
             Self::TooShort { .. } => "too_short",
             Self::FlatSignal { .. } => "flat_signal",
+            Self::Loosening { .. } => "loosening",
             Self::NoElasticZone { .. } => "no_elastic_zone",
             Self::ModelMisfit { .. } => "model_misfit",
             Self::UnknownThread { .. } => "unknown_thread",
@@ -115,6 +125,11 @@ impl fmt::Display for TighteningStatus {
                 write!(f, "{code}: {samples} samples in the {what}, at least {minimum} needed")
             }
             Self::FlatSignal { channel } => write!(f, "{code}: {channel} does not vary"),
+            Self::Loosening { peak_torque, peak_angle } => write!(
+                f,
+                "{code}: torque falls (peak |torque| {peak_torque:.3} Nm at {peak_angle:.2} deg is negative); detection applies \
+                 to tightening curves (a tightening recorded with negative torque: negate torque to analyse it)"
+            ),
             Self::NoElasticZone { reason } => write!(f, "{code}: {reason}"),
             Self::ModelMisfit { curvature_p_value } => write!(
                 f,
@@ -145,6 +160,7 @@ mod tests {
             TighteningStatus::NonFinite { channel: "torque", count: 2 },
             TighteningStatus::TooShort { samples: 3, minimum: 30, what: "curve" },
             TighteningStatus::FlatSignal { channel: "torque" },
+            TighteningStatus::Loosening { peak_torque: -2.57, peak_angle: 3.5 },
             TighteningStatus::NoElasticZone { reason: "x" },
         ];
         for s in all {

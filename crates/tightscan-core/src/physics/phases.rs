@@ -311,7 +311,9 @@ pub fn find_phases<A: Sample, T: Sample>(
     // Window by levels of the rise above the prevailing torque, walking forward from the knee.
     let rise = peak - prevailing;
     if rise <= 0.0 {
-        return Err(WindowError::FlatTorque);
+        // The torque varies (its range was checked above) but the peak is no higher than the
+        // rundown level: a curve that falls, not a flat one.
+        return Err(WindowError::NoRise);
     }
     let lo = prevailing + zone.start_fraction * rise;
     let hi = prevailing + zone.end_fraction * rise;

@@ -124,6 +124,8 @@ pub struct ElasticWindow {
 pub enum WindowError {
     /// Torque never varies.
     FlatTorque,
+    /// Torque varies but never rises above its prevailing (rundown) level: no elastic rise.
+    NoRise,
     /// The window holds too few samples.
     TooShort(usize),
     /// Angle does not advance across the window.

@@ -731,15 +731,47 @@ impl Detector {
         if angle.iter().all(|a| a.to_f64() == first) {
             return Err(TighteningStatus::FlatSignal { channel: schema::ANGLE });
         }
-        find_phases(angle, torque, &self.config.zone, &self.config.yield_zone, &mut s.phases).map_err(|e| match e {
+        // Flat means no range at all, whatever the sign; a curve that varies is never flat.
+        let (mut i_low, mut low, mut high) = (0, f64::INFINITY, f64::NEG_INFINITY);
+        for (i, t) in torque.iter().enumerate() {
+            let t = t.to_f64();
+            if t < low {
+                (i_low, low) = (i, t);
+            }
+            high = high.max(t);
+        }
+        if high <= low {
+            return Err(TighteningStatus::FlatSignal { channel: schema::TORQUE });
+        }
+        // The phase finder looks for a rise of positive torque to a peak. A curve whose largest
+        // torque in magnitude is negative (a loosening curve: breakaway, then the torque runs
+        // out towards 0) has no such rise; analysed as one, its "rundown" sits at the top and
+        // its "elastic line" is a fragment of the run-out, with a snug angle far off the curve.
+        if -low > high {
+            return Err(TighteningStatus::Loosening { peak_torque: low, peak_angle: angle[i_low].to_f64() });
+        }
+        let phases = find_phases(angle, torque, &self.config.zone, &self.config.yield_zone, &mut s.phases).map_err(|e| match e {
             WindowError::FlatTorque => TighteningStatus::FlatSignal { channel: schema::TORQUE },
+            WindowError::NoRise => {
+                TighteningStatus::NoElasticZone { reason: "torque varies but never rises above its prevailing (rundown) level" }
+            }
             WindowError::TooShort(len) => {
                 TighteningStatus::TooShort { samples: len, minimum: MIN_FIT_SAMPLES, what: "elastic window" }
             }
             WindowError::AngleStuck => {
                 TighteningStatus::NoElasticZone { reason: "angle does not advance while torque rises" }
             }
-        })
+        })?;
+        // The snug angle is extrapolated (the elastic line down to the prevailing torque). Off
+        // the recorded angles it describes no part of this curve, and neither does the window
+        // it was drawn through: no result may rest on it.
+        let (a_min, a_max) = angle.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), a| (lo.min(a.to_f64()), hi.max(a.to_f64())));
+        if !(phases.snug_angle >= a_min && phases.snug_angle <= a_max) {
+            return Err(TighteningStatus::NoElasticZone {
+                reason: "the elastic line meets the prevailing torque outside the curve's angles (snug angle off the curve)",
+            });
+        }
+        Ok(phases)
     }
 }
 

@@ -477,7 +477,34 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut
     // curves (0.5 deg encoder, 2 kHz) from 3.3 % to 4.3 %. A slow encoder's rises (k = 0) hold
     // across the gaps.
     let consecutive = index[..n].windows(2).all(|w| w[1] == w[0] + 1);
-    let k = if consecutive && n > 1 { ((x[n - 1] - x[0]) / (n - 1) as f64 / resolution).round() } else { 0.0 };
+    // A carrier needs a real encoder grid and a beat that moves inside the window: every step
+    // a whole number of encoder steps (to a hundredth), at least one of them not k. A fine
+    // encoder at a low rate passes `encoder_resolution`'s looser check with its smallest step
+    // as the "resolution" (500 Hz, 0.01 deg: 120 or 121 counts a sample, within 5 % of one
+    // "step"), and its beat, a cell of one such step, turned 0 % false alarms into 4.6 %. A
+    // tool turning 2.02 steps a sample shows steps of 2 and 3 encoder steps only, and the
+    // smallest step is then two: the grid is looked for at a half, a third and a quarter of it.
+    let mut k = 0.0;
+    let mut grid = resolution;
+    if consecutive && n > 1 {
+        for divisor in 1..=4 {
+            let r = resolution / divisor as f64;
+            let kk = ((x[n - 1] - x[0]) / (n - 1) as f64 / r).round();
+            let (mut on_grid, mut moves) = (true, 0usize);
+            for w in x[..n].windows(2) {
+                let q = (w[1] - w[0]) / r;
+                on_grid &= (q - q.round()).abs() < 0.01;
+                moves += usize::from(q.round() != kk);
+            }
+            if on_grid {
+                if kk >= 1.0 && moves > 0 {
+                    (k, grid) = (kk, r);
+                }
+                break;
+            }
+        }
+    }
+    let resolution = grid;
     let carrier = k * resolution;
     // Each consecutive run is a staircase of its own (the tail past the window may have stops
     // left out too), its phase unknown to the others.

@@ -273,6 +273,15 @@ def test_cli_reads_a_rexroth_directory(tmp_path: Path, rexroth_dir: Path) -> Non
     assert main(["diagnose", str(tmp_path / "nowhere"), "--json", str(out)]) == 3  # a data error
 
 
+
+def test_a_nested_export_with_upper_case_names_is_found(tmp_path: Path, rexroth_dir: Path) -> None:
+    """diagnose searches an export as `import rexroth` does: below the directory, any case."""
+    for k, path in enumerate(sorted((rexroth_dir / "runs").glob("*.json"))[:6]):
+        day = tmp_path / "export" / f"day{k % 2}"
+        day.mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, day / (path.stem + ".JSON"))
+    assert load_table(tmp_path / "export").num_rows == 6
+
 # ---------------------------------------------------------------------------------------------
 # The statistics come from scipy and statsmodels, each used as its textbook says
 

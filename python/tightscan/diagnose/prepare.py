@@ -41,13 +41,12 @@ def _read_path(path: Path) -> pa.Table:
     from ..rexroth import read_rexroth
 
     if path.is_dir():
+        labels = path / "labels.csv"
+        # As `import rexroth` searches: below the directory, `.json` in any case.
         runs = path / "runs"
-        if runs.is_dir() and any(runs.glob("*.json")):
-            labels = path / "labels.csv"
-            return read_rexroth(runs, labels=labels if labels.is_file() else None, progress=False)
-        if any(path.glob("*.json")):
-            labels = path / "labels.csv"
-            return read_rexroth(path, labels=labels if labels.is_file() else None, progress=False)
+        for folder in (runs, path):
+            if folder.is_dir() and any(p.suffix.lower() == ".json" and p.is_file() for p in folder.rglob("*")):
+                return read_rexroth(folder, labels=labels if labels.is_file() else None, progress=False)
         parquet = sorted(path.rglob("*.parquet"))
         if parquet:
             import pyarrow.dataset as ds

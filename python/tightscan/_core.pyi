@@ -13,6 +13,7 @@ def detect(
     passthrough: list[str] | None = None,
     first_row: int = 0,
 ) -> pa.Table: ...
+def flag_duplicate_ids(results: Any) -> pa.Table: ...
 def result_schema(
     schema: Any,
     config: dict[str, Any] | None = None,

@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 use arbitrary::Arbitrary;
 use arrow_array::types::{Float32Type, Float64Type, Int32Type};
-use arrow_array::{Array, ArrayRef, Float32Array, Float64Array, Int32Array, Int64Array, LargeListArray, ListArray, RecordBatch, StringArray};
+use arrow_array::{Array, ArrayRef, DictionaryArray, Float32Array, Float64Array, Int32Array, Int64Array, LargeListArray, ListArray, RecordBatch, StringArray};
 use arrow_schema::{DataType, Field, Schema};
 use libfuzzer_sys::fuzz_target;
 use tightscan_core::{DetectConfig, Detector};
@@ -83,6 +83,8 @@ enum Ids {
     None,
     Int,
     Str,
+    /// Dictionary-encoded strings (pandas categoricals).
+    Dict,
 }
 
 #[derive(Arbitrary, Debug)]
@@ -225,6 +227,10 @@ fn id_array(ids: &Ids, values: Vec<Option<u8>>) -> Option<ArrayRef> {
         Ids::None => None,
         Ids::Int => Some(Arc::new(values.into_iter().map(|v| v.map(i64::from)).collect::<Int64Array>())),
         Ids::Str => Some(Arc::new(values.into_iter().map(|v| v.map(|v| format!("t{v}é"))).collect::<StringArray>())),
+        Ids::Dict => {
+            let text: Vec<Option<String>> = values.into_iter().map(|v| v.map(|v| format!("t{v}"))).collect();
+            Some(Arc::new(text.iter().map(|t| t.as_deref()).collect::<DictionaryArray<Int32Type>>()))
+        }
     }
 }
 

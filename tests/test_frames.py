@@ -114,6 +114,23 @@ def test_lazyframe_repeated_id_in_a_later_batch_is_flagged_in_both_rows(curves: 
     assert status == tightscan.detect_batch(table).column("status").to_pylist()
 
 
+def test_lazyframe_without_collect_batches_streams_in_slices(curves: pa.Table, expected: pa.Table) -> None:
+    """Older polars (before collect_batches): one streaming collect per slice, same results."""
+    from tightscan._api import _lazy_batches
+
+    class OldLazyFrame:  # what an older polars LazyFrame offers, nothing more
+        def __init__(self, frame: pl.LazyFrame) -> None:
+            self.frame = frame
+
+        def slice(self, offset: int, length: int) -> pl.LazyFrame:
+            return self.frame.slice(offset, length)
+
+    lazy = pl.from_arrow(_long(curves)).lazy()
+    pieces = list(_lazy_batches(OldLazyFrame(lazy), 4_000))
+    assert len(pieces) > 1 and max(p.num_rows for p in pieces) <= 4_000
+    assert pa.concat_tables(pieces).equals(lazy.collect().to_arrow())
+
+
 def test_empty_lazyframe_gives_the_empty_result(curves: pa.Table) -> None:
     out = tightscan.detect_batch(pl.from_arrow(curves.slice(0, 0)).lazy())
     assert out.height == 0 and "status" in out.columns

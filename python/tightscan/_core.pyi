@@ -64,6 +64,7 @@ __all__ = [
     "cusum_threshold",
     "default_config",
     "detect",
+    "flag_duplicate_ids",
     "result_columns",
     "result_schema",
     "simulate",

@@ -32,7 +32,7 @@ CONTRACT = (Path(__file__).resolve().parents[1] / "docs" / "data-contract.md").r
 STATUS_CODES = set(re.findall(r"^\| `([a-z_]+)` \|", CONTRACT.split("### Status codes")[1].split("## ")[0], re.M))
 
 PROPERTY_SETTINGS = settings(
-    max_examples=150,
+    max_examples=300,
     derandomize=True,
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
@@ -259,3 +259,16 @@ def test_threads_at_once_give_what_one_thread_gives() -> None:
     with ThreadPoolExecutor(max_workers=4) as pool:
         parallel = list(pool.map(lambda t: _rows(tightscan.detect_batch(t)), tables * 2))
     assert parallel == serial * 2
+
+
+def test_all_null_dictionary_ids_regression() -> None:
+    """Found by the properties above: a dictionary-encoded id column without values (every id
+    null) made the engine panic; null ids are unknown, not repeated."""
+    angle = pa.array([[0.0, 1.0], [0.0, 2.0]])
+    ids = pa.array([None, None], pa.string()).dictionary_encode()
+    assert len(ids.dictionary) == 0
+    out = tightscan.detect_batch(pa.table({"tightening_id": ids, "angle": angle, "torque": angle}))
+    assert out.num_rows == 2
+    assert not any(s.startswith("duplicate_id") for s in out.column("status").to_pylist())
+    long = pa.table({"tightening_id": pa.array([None] * 3, pa.string()).dictionary_encode(), "angle": [0.0, 1.0, 2.0], "torque": [0.0, 1.0, 2.0]})
+    assert tightscan.detect_batch(long).column("status").to_pylist() == ["null_tightening: the tightening is null"]

@@ -35,7 +35,7 @@ fuzz-smoke:
 	cd $(FUZZ_CRATE) && if ! cargo +nightly fuzz build detect >fuzz/build.log 2>&1; then \
 	  tail -20 fuzz/build.log; echo "fuzz-smoke SKIPPED: the fuzz target does not build here (fuzz/build.log)"; exit 0; fi; \
 	mkdir -p fuzz/corpus/detect fuzz/seeds/detect && RAYON_NUM_THREADS=1 cargo +nightly fuzz run detect fuzz/corpus/detect fuzz/seeds/detect -- \
-	  -max_total_time=$(FUZZ_SECONDS) -runs=500000 -rss_limit_mb=2048 -print_final_stats=1
+	  -max_total_time=$(FUZZ_SECONDS) -runs=500000 -timeout=60 -rss_limit_mb=2048 -print_final_stats=1
 
 $(VENV)/.deps: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)

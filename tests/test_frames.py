@@ -114,6 +114,12 @@ def test_lazyframe_repeated_id_in_a_later_batch_is_flagged_in_both_rows(curves: 
     assert status == tightscan.detect_batch(table).column("status").to_pylist()
 
 
+def test_lazyframe_passthrough_true_names_the_columns_from_the_plan(curves: pa.Table) -> None:
+    out = tightscan.detect_batch(pl.from_arrow(curves).lazy(), passthrough=True, batch_rows=16)
+    assert out.columns == tightscan.detect_batch(curves, passthrough=True).column_names
+    assert out["station"].to_list() == curves.column("station").to_pylist()
+
+
 def test_lazyframe_without_collect_batches_streams_in_slices(curves: pa.Table, expected: pa.Table) -> None:
     """Older polars (before collect_batches): one streaming collect per slice, same results."""
     from tightscan._api import _lazy_batches

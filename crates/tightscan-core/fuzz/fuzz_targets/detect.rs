@@ -197,6 +197,10 @@ fn synthesize(t: &Tightening) -> Curves {
             }
         }
     }
+    // Restarts double a curve: cap the volume, which finds nothing but slow units.
+    for c in curves.iter_mut() {
+        c.truncate(4 * MAX_SAMPLES);
+    }
     let [angle, torque, time, speed] = curves;
     [(!t.null_angle).then_some(angle), (!t.null_torque).then_some(torque), Some(time), Some(speed)]
 }

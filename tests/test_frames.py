@@ -203,3 +203,20 @@ def test_result_schema_is_every_frame_kinds_output_type(curves: pa.Table) -> Non
     assert isinstance(polars_in, pl.DataFrame)
     from_polars = tightscan.result_schema(polars_in.to_arrow().schema, ["station"])
     assert tightscan.detect_batch(polars_in.to_arrow(), passthrough=["station"]).schema == from_polars
+
+
+def test_categorical_ids_of_pandas_and_polars_are_ids(curves: pa.Table) -> None:
+    """pandas and polars categoricals reach the engine dictionary-encoded; a repeated one is
+    reported like any other id, also across the batches of a LazyFrame."""
+    names = ["a", "b", "a"] + [f"n{i}" for i in range(curves.num_rows - 3)]
+    frame = pl.from_arrow(curves)
+    assert isinstance(frame, pl.DataFrame)
+    frame = frame.with_columns(pl.Series("tightening_id", names).cast(pl.Categorical))
+    first = 'duplicate_id: tightening_id "a" appears 2 times; as a curve: '
+    for out in (tightscan.detect_batch(frame), tightscan.detect_batch(frame.lazy(), batch_rows=2)):
+        status = out["status"].to_list()
+        assert status[0].startswith(first) and status[2].startswith(first) and not status[1].startswith("duplicate_id")
+    pandas_frame = curves.to_pandas()
+    pandas_frame["tightening_id"] = pd.Categorical(names)
+    status = tightscan.detect_batch(pandas_frame)["status"].tolist()
+    assert status[0].startswith(first) and status[2].startswith(first)

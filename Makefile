@@ -24,7 +24,9 @@ test: $(VENV)/.built
 # A short libFuzzer run of the engine's entry point (docs/fuzzing.md). A crash fails the tests.
 # A machine that cannot build the fuzzer (no rustup nightly, no cargo-fuzz and no network to
 # install them) skips it with a warning: that is not a finding. On a fresh machine installing
-# cargo-fuzz takes about a minute, the first build of the target a few more.
+# cargo-fuzz takes about a minute, the first build of the target a few more. It starts from the
+# committed seeds only (a fresh corpus each time), so that a long local corpus does not make
+# the smoke run long.
 FUZZ_CRATE := crates/tightscan-core
 FUZZ_SECONDS ?= 15
 fuzz-smoke:
@@ -34,7 +36,8 @@ fuzz-smoke:
 	  echo "fuzz-smoke SKIPPED: needs rustup's nightly toolchain and cargo-fuzz, which could not be installed"; exit 0; fi; \
 	cd $(FUZZ_CRATE) && if ! cargo +nightly fuzz build detect >fuzz/build.log 2>&1; then \
 	  tail -20 fuzz/build.log; echo "fuzz-smoke SKIPPED: the fuzz target does not build here (fuzz/build.log)"; exit 0; fi; \
-	mkdir -p fuzz/corpus/detect fuzz/seeds/detect && RAYON_NUM_THREADS=1 cargo +nightly fuzz run detect fuzz/corpus/detect fuzz/seeds/detect -- \
+	rm -rf fuzz/corpus/smoke && mkdir -p fuzz/corpus/smoke fuzz/seeds/detect && \
+	RAYON_NUM_THREADS=1 cargo +nightly fuzz run detect fuzz/corpus/smoke fuzz/seeds/detect -- \
 	  -max_total_time=$(FUZZ_SECONDS) -runs=500000 -timeout=60 -rss_limit_mb=2048 -print_final_stats=1
 
 $(VENV)/.deps: pyproject.toml

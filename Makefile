@@ -5,10 +5,10 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
 # Anything that changes the extension triggers a rebuild.
-RUST_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml Cargo.lock
+RUST_SOURCES := $(shell find crates -path '*/fuzz' -prune -o \( -name '*.rs' -o -name Cargo.toml \) -print) Cargo.toml Cargo.lock
 PY_SOURCES := $(shell find python -type f -not -name '*.so' -not -path '*/__pycache__/*') pyproject.toml
 
-.PHONY: demo test test-rust test-python bench build clean
+.PHONY: demo test test-rust test-python bench build clean fuzz-smoke
 
 demo: $(VENV)/.built
 	$(VENV)/bin/tightscan demo
@@ -19,6 +19,26 @@ test: $(VENV)/.built
 	$(PY) -m pytest
 	$(PY) -m mypy python/tightscan
 	$(PY) -m mypy.stubtest tightscan._core --mypy-config-file pyproject.toml --allowlist tests/stubtest-allowlist.txt
+	$(MAKE) --no-print-directory fuzz-smoke
+
+# A short libFuzzer run of the engine's entry point (docs/fuzzing.md). A crash fails the tests.
+# A machine that cannot build the fuzzer (no rustup nightly, no cargo-fuzz and no network to
+# install them) skips it with a warning: that is not a finding. On a fresh machine installing
+# cargo-fuzz takes about a minute, the first build of the target a few more. It starts from the
+# committed seeds only (a fresh corpus each time), so that a long local corpus does not make
+# the smoke run long.
+FUZZ_CRATE := crates/tightscan-core
+FUZZ_SECONDS ?= 15
+fuzz-smoke:
+	@rustup run nightly rustc --version >/dev/null 2>&1 || rustup toolchain install nightly --profile minimal || true
+	@cargo fuzz --version >/dev/null 2>&1 || cargo install cargo-fuzz --locked || true
+	@if ! rustup run nightly rustc --version >/dev/null 2>&1 || ! cargo fuzz --version >/dev/null 2>&1; then \
+	  echo "fuzz-smoke SKIPPED: needs rustup's nightly toolchain and cargo-fuzz, which could not be installed"; exit 0; fi; \
+	cd $(FUZZ_CRATE) && if ! cargo +nightly fuzz build detect >fuzz/build.log 2>&1; then \
+	  tail -20 fuzz/build.log; echo "fuzz-smoke SKIPPED: the fuzz target does not build here (fuzz/build.log)"; exit 0; fi; \
+	rm -rf fuzz/corpus/smoke && mkdir -p fuzz/corpus/smoke fuzz/seeds/detect && \
+	RAYON_NUM_THREADS=1 cargo +nightly fuzz run detect fuzz/corpus/smoke fuzz/seeds/detect -- \
+	  -max_total_time=$(FUZZ_SECONDS) -runs=500000 -timeout=60 -rss_limit_mb=2048 -print_final_stats=1
 
 $(VENV)/.deps: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -26,6 +46,8 @@ $(VENV)/.deps: pyproject.toml
 	$(PY) -m pip install --quiet "maturin>=1.9,<2" pyarrow numpy rich "scipy>=1.11" "statsmodels>=0.14" "pytest>=8" "hypothesis>=6.100" "polars>=1.0" "mypy>=1.10" "matplotlib>=3.8"
 	# scan engines and a local S3 server for tests/test_engines.py and tests/test_sources.py (issue 13)
 	$(PY) -m pip install --quiet "dask[distributed]>=2024.1" "pandas>=2.0" "ray[data]>=2.9" "moto[server]>=5"
+	# tests/test_frames.py: duckdb relations in, pandas in and out (pandas also comes with statsmodels)
+	$(PY) -m pip install --quiet "duckdb>=1.1" "pandas>=2.2"
 	touch $@
 
 $(VENV)/.built: $(VENV)/.deps $(RUST_SOURCES) $(PY_SOURCES)

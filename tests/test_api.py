@@ -92,7 +92,9 @@ def test_long_layout_matches_nested(simulated: tuple[pa.Table, pa.Table]) -> Non
     assert tightscan.detect_batch(reader).column("tightening_id").equals(nested.column("tightening_id"))
 
 
-def test_long_layout_interleaved_keeps_first_appearance_order() -> None:
+def test_long_layout_interleaved_ids_are_not_merged() -> None:
+    """A tightening is a run of contiguous samples: an id coming back is a second tightening
+    under it, with its own row, and every row of a repeated id says so (never one merged curve)."""
     table = pa.table(
         {
             "tightening_id": [7, 3, 7, 3, 9],
@@ -101,8 +103,51 @@ def test_long_layout_interleaved_keeps_first_appearance_order() -> None:
         }
     )
     out = tightscan.detect_batch(table)
-    assert out.column("tightening_id").to_pylist() == [7, 3, 9]
-    assert out.column("n_samples").to_pylist() == [2, 2, 1]
+    assert out.column("tightening_id").to_pylist() == [7, 3, 7, 3, 9]
+    assert out.column("n_samples").to_pylist() == [1, 1, 1, 1, 1]
+    status = out.column("status").to_pylist()
+    assert [s.split(":")[0] for s in status] == ["duplicate_id"] * 4 + ["too_short"]
+    assert status[0].startswith("duplicate_id: tightening_id 7 appears 2 times; as a curve: too_short")
+
+
+def test_long_layout_second_curve_under_one_id_is_split_and_flagged(simulated: tuple[pa.Table, pa.Table]) -> None:
+    """Two recordings under one id, one after the other (the clock starts over): two rows,
+    each analysed on its own samples, both `duplicate_id`; the nested run of the same curves
+    gives the same values."""
+    curves, _ = simulated
+    pair = curves.slice(0, 2).select(["tightening_id", "angle", "torque", "time"])
+    lengths = pc.list_value_length(pair.column("angle")).to_pylist()
+    long = pa.table(
+        {
+            "tightening_id": pa.array(["bolt-1"] * sum(lengths)),
+            **{c: pc.list_flatten(pair.column(c)) for c in ("angle", "torque", "time")},
+        }
+    )
+    same_id = pair.set_column(0, "tightening_id", pa.array(["bolt-1", "bolt-1"]))
+    for columns in (["tightening_id", "angle", "torque", "time"], ["tightening_id", "angle", "torque"]):
+        out = tightscan.detect_batch(long.select(columns))
+        nested = tightscan.detect_batch(same_id.select(columns))
+        assert out.column("n_samples").to_pylist() == lengths
+        assert out.column("status").to_pylist() == nested.column("status").to_pylist()
+        assert out.column("torque_rate").to_pylist() == nested.column("torque_rate").to_pylist()
+    assert all(s.startswith('duplicate_id: tightening_id "bolt-1" appears 2 times') for s in nested.column("status").to_pylist())
+
+
+def test_nested_duplicate_ids_keep_their_rows_and_are_flagged(simulated: tuple[pa.Table, pa.Table]) -> None:
+    curves, _ = simulated
+    curves = curves.slice(0, 6)
+    ids = pa.array(["a", "b", "a", None, None, "c"])
+    plain = tightscan.detect_batch(curves)
+    out = tightscan.detect_batch(curves.set_column(0, "tightening_id", ids))
+    status = out.column("status").to_pylist()
+    for i in (0, 2):
+        assert status[i] == f'duplicate_id: tightening_id "a" appears 2 times; as a curve: {plain.column("status")[i].as_py()}'
+    for i in (1, 3, 4, 5):  # unique and null ids are left alone
+        assert status[i] == plain.column("status")[i].as_py()
+    assert out.column("change_angle").equals(plain.column("change_angle"))  # the analysis is kept
+    # The same over chunks: the repeat is counted over the whole table.
+    chunked = pa.Table.from_batches(curves.set_column(0, "tightening_id", ids).to_batches(max_chunksize=1))
+    assert tightscan.detect_batch(chunked).column("status").to_pylist() == status
 
 
 def test_passthrough_true_copies_metadata(simulated: tuple[pa.Table, pa.Table]) -> None:

@@ -11,6 +11,7 @@ from . import _core
 from .config import ConfigLike, as_dict
 
 if TYPE_CHECKING:
+    import pandas
     import polars
 
 __all__ = [
@@ -24,8 +25,15 @@ __all__ = [
 PathLike = Union[str, "os.PathLike[str]"]
 
 
-def _is_polars(obj: object) -> bool:
-    return type(obj).__module__.split(".")[0] == "polars" and type(obj).__name__ == "DataFrame"
+def _frame_kind(obj: object) -> str:
+    """``"pandas"``, ``"polars"``, ``"polars_lazy"`` or ``"arrow"`` (anything else)."""
+    module = type(obj).__module__.split(".")[0]
+    name = type(obj).__name__
+    if module == "polars" and name in ("DataFrame", "LazyFrame"):
+        return "polars" if name == "DataFrame" else "polars_lazy"
+    if module == "pandas" and name == "DataFrame":
+        return "pandas"
+    return "arrow"
 
 
 def _passthrough_list(passthrough: Sequence[str] | bool | None, columns: Sequence[str]) -> list[str]:
@@ -49,8 +57,13 @@ def result_schema(
 
     Engines that need the output type before they run (``dask.dataframe.map_partitions``'s
     ``meta``, a Parquet writer opened ahead of the first batch) get it here, from the same
-    place the engine builds its rows. ``input_schema`` is a ``pyarrow.Schema`` or anything
-    with one (a Table, a polars DataFrame); ``passthrough`` as in :func:`detect_batch`.
+    place the engine builds its rows. ``input_schema`` is a ``pyarrow.Schema`` or the input
+    itself (a pyarrow Table, a pandas or polars DataFrame or LazyFrame, a duckdb relation): the
+    types of pass-through columns and ids are those of the input as :func:`detect_batch` sees
+    it, so give the frame when its Arrow types are not known (pandas strings, duckdb's
+    nullable columns). ``passthrough`` as in :func:`detect_batch`. The result of a pandas or
+    polars input has this schema as that library spells it
+    (``schema.empty_table().to_pandas(types_mapper=pd.ArrowDtype)``, ``pl.from_arrow(...)``).
 
     >>> import tightscan
     >>> curves, _ = tightscan.simulate(5, seed=1)
@@ -58,6 +71,11 @@ def result_schema(
     >>> schema.names == tightscan.detect_batch(curves).column_names
     True
     """
+    kind = _frame_kind(input_schema)
+    if kind == "pandas":  # the types detect_batch converts a pandas frame to
+        input_schema = pa.Schema.from_pandas(input_schema, preserve_index=False)
+    elif kind == "polars_lazy":
+        input_schema = input_schema.head(0).collect().to_arrow().schema
     if not isinstance(input_schema, pa.Schema):
         if isinstance(input_schema, (pa.Table, pa.RecordBatch)):
             input_schema = input_schema.schema
@@ -70,22 +88,116 @@ def result_schema(
     return schema
 
 
+def _column_names(data: Any, kind: str) -> list[str] | None:
+    if isinstance(data, (pa.Table, pa.RecordBatch)):
+        return list(data.schema.names)
+    if kind == "polars_lazy":
+        return list(data.collect_schema().names())
+    if isinstance(data, pa.RecordBatchReader):
+        return list(data.schema.names)
+    columns = getattr(data, "columns", None)  # pandas, polars, duckdb relations
+    return [str(c) for c in columns] if columns is not None else None
+
+
+def _is_long_layout(schema: pa.Schema) -> bool:
+    if "angle" not in schema.names:
+        return False  # the engine names the missing column
+    angle = schema.field("angle").type
+    return not (pa.types.is_list(angle) or pa.types.is_large_list(angle) or pa.types.is_list_view(angle))
+
+
+def _hold_back_last_tightening(table: pa.Table) -> tuple[pa.Table, pa.Table]:
+    """Long layout: the last tightening of a batch may go on in the next one; keep it back."""
+    if table.num_rows == 0 or "tightening_id" not in table.column_names:
+        return table, table.slice(0, 0)
+    ids = table.column("tightening_id")
+    last = ids[len(ids) - 1]
+    same = pc.is_null(ids) if not last.is_valid else pc.fill_null(pc.equal(ids, last), False)
+    other = pc.indices_nonzero(pc.invert(same))
+    cut = other[len(other) - 1].as_py() + 1 if len(other) else 0
+    return table.slice(0, cut), table.slice(cut)
+
+
+def _lazy_batches(frame: Any, batch_rows: int) -> Iterator[pa.Table]:
+    """A polars LazyFrame as Arrow tables of about ``batch_rows`` rows, never all at once."""
+    if hasattr(frame, "collect_batches"):  # polars >= 1.34: the streaming engine's batches
+        for chunk in frame.collect_batches(chunk_size=batch_rows, maintain_order=True):
+            yield chunk.to_arrow()
+        return
+    offset = 0  # older polars: one streaming collect per slice
+    while True:
+        chunk = frame.slice(offset, batch_rows).collect(engine="streaming")
+        if chunk.height == 0:
+            return
+        yield chunk.to_arrow()
+        offset += chunk.height
+
+
+def _detect_lazy(frame: Any, cfg: dict[str, Any] | None, pass_cols: list[str], batch_rows: int) -> pa.Table:
+    """Streams a LazyFrame through the engine: memory holds one input batch (plus, in the long
+    layout, the tightening that runs on into the next) and the results, not the whole input."""
+    results: list[pa.Table] = []
+    first_row = 0
+    carry: pa.Table | None = None
+    long_layout: bool | None = None
+
+    def run(table: pa.Table) -> None:
+        nonlocal first_row
+        if table.num_rows == 0:
+            return
+        result = _core.detect(table, cfg, pass_cols, first_row)
+        first_row += table.num_rows
+        results.append(result)
+
+    for table in _lazy_batches(frame, batch_rows):
+        if long_layout is None:
+            long_layout = _is_long_layout(table.schema)
+        if long_layout:
+            if carry is not None and carry.num_rows:
+                table = pa.concat_tables([carry, table])
+            table, carry = _hold_back_last_tightening(table)
+        run(table)
+    if carry is not None:
+        run(carry)
+    if not results:  # no rows: the engine still checks the schema and gives the empty result
+        return _core.detect(frame.head(0).collect().to_arrow(), cfg, pass_cols, 0)
+    # A repeated id may sit in two batches: flag it over the whole result, as one call would.
+    flagged: pa.Table = _core.flag_duplicate_ids(pa.concat_tables(results))
+    return flagged
+
+
 def detect_batch(
     data: Any,
     config: ConfigLike = None,
     *,
     passthrough: Sequence[str] | bool | None = None,
-) -> "pa.Table | polars.DataFrame":
+    batch_rows: int = 65_536,
+) -> "pa.Table | pandas.DataFrame | polars.DataFrame":
     """Detect friction changes in every tightening of a table.
 
-    ``data`` is anything that speaks the Arrow PyCapsule interface: a pyarrow Table,
-    RecordBatch or RecordBatchReader, a polars DataFrame, a duckdb result. Layout and units
-    follow the data contract (docs/data-contract.md): one row per tightening with list
-    channels ``angle`` [deg] and ``torque`` [Nm], or one row per sample.
+    Layout and units follow the data contract (docs/data-contract.md): one row per tightening
+    with list channels ``angle`` [deg] and ``torque`` [Nm], or one row per sample. The result
+    comes back as the kind of frame that came in, so that it fits the pipeline it came from:
 
-    Returns one row per input tightening, in input order: a polars DataFrame for polars input,
-    else a pyarrow Table. A malformed tightening gets a row whose ``status`` says what is wrong;
-    a malformed table raises :class:`SchemaError` naming the column.
+    - pandas DataFrame: a pandas DataFrame of ``pd.ArrowDtype`` columns (no precision lost to
+      NumPy: nullable ints and bools stay so). In the nested layout it keeps the input's index,
+      one result row per input row, so ``df.join(results)`` lines up and Dask partitions keep
+      their divisions.
+    - polars DataFrame: a polars DataFrame.
+    - polars LazyFrame: streamed batch by batch (``collect_batches``, ``batch_rows`` rows at a
+      time), so a ``scan_parquet`` plan larger than memory can be analysed; a tightening of the
+      long layout that spans two batches stays whole. Returns a polars **DataFrame**: the
+      results are small (one row of scalars per tightening) and complete only at the end (a
+      repeated id in a later batch changes the status of an earlier row), so a LazyFrame would
+      only pretend to be lazy; call ``.lazy()`` on it to go on lazily.
+    - anything else with the Arrow PyCapsule interface (pyarrow Table, RecordBatch or
+      RecordBatchReader, a duckdb relation, ...): a pyarrow Table.
+
+    Returns one row per input tightening, in input order. A malformed tightening gets a row
+    whose ``status`` says what is wrong, a repeated ``tightening_id`` is reported in every row
+    that carries it (``duplicate_id``); a malformed table raises :class:`SchemaError` naming the
+    column, and an object that is not a table raises ``TypeError``.
+    :func:`result_schema` gives the Arrow schema of the result before the run.
 
     ``passthrough`` copies input columns to the results (``True``: every non-channel column).
 
@@ -98,25 +210,47 @@ def detect_batch(
     >>> statuses.count("ok") > 180   # the others say why, e.g. 'too_short: ...'
     True
     """
-    polars_in = _is_polars(data)
-    if not (hasattr(data, "__arrow_c_stream__") or hasattr(data, "__arrow_c_array__")):
+    kind = _frame_kind(data)
+    if kind == "arrow" and not (hasattr(data, "__arrow_c_stream__") or hasattr(data, "__arrow_c_array__")):
         raise TypeError(
-            f"detect_batch needs an Arrow table (pyarrow, polars, duckdb ...), not {type(data).__name__}"
+            f"detect_batch needs an Arrow table (pyarrow, pandas, polars, duckdb ...), not {type(data).__name__}"
         )
+    if batch_rows < 1:
+        raise ValueError(f"batch_rows must be at least 1, got {batch_rows}")
     pass_cols: list[str] = []
     if passthrough is True:
-        names = data.schema.names if isinstance(data, (pa.Table, pa.RecordBatch)) else getattr(data, "columns", None)
+        names = _column_names(data, kind)
         if names is None:
-            raise TypeError("passthrough=True needs a pyarrow or polars table; name the columns instead")
-        pass_cols = _passthrough_list(True, list(names))
+            raise TypeError("passthrough=True needs a table whose columns can be listed; name the columns instead")
+        pass_cols = _passthrough_list(True, names)
     else:
         pass_cols = _passthrough_list(passthrough, [])
-    result = _core.detect(data, as_dict(config), pass_cols)
-    if polars_in:
+    cfg = as_dict(config)
+    if kind == "polars_lazy":
         import polars as pl
 
-        frame: Any = pl.from_arrow(result)
+        lazy_frame: Any = pl.from_arrow(_detect_lazy(data, cfg, pass_cols, batch_rows))
+        return lazy_frame
+    if kind == "pandas":
+        import pandas as pd
+
+        # pandas' own Arrow export carries the index as a column in some versions; the
+        # contract's columns are the frame's columns, so convert without it.
+        try:
+            table = pa.Table.from_pandas(data, preserve_index=False)
+        except (pa.ArrowInvalid, pa.ArrowTypeError) as e:  # e.g. an object column of mixed types
+            raise SchemaError(f"the pandas DataFrame does not convert to Arrow: {e}") from e
+        result = _core.detect(table, cfg, pass_cols)
+        frame: Any = result.to_pandas(types_mapper=pd.ArrowDtype)
+        if not _is_long_layout(table.schema) and len(frame) == len(data):
+            frame.index = data.index
         return frame
+    result = _core.detect(data, cfg, pass_cols)
+    if kind == "polars":
+        import polars as pl
+
+        polars_frame: Any = pl.from_arrow(result)
+        return polars_frame
     return result
 
 

@@ -13,6 +13,7 @@ def detect(
     passthrough: list[str] | None = None,
     first_row: int = 0,
 ) -> pa.Table: ...
+def flag_duplicate_ids(results: Any) -> pa.Table: ...
 def result_schema(
     schema: Any,
     config: dict[str, Any] | None = None,
@@ -63,6 +64,7 @@ __all__ = [
     "cusum_threshold",
     "default_config",
     "detect",
+    "flag_duplicate_ids",
     "result_columns",
     "result_schema",
     "simulate",

@@ -40,6 +40,19 @@ fn detect<'py>(
     PyTable::try_new(batches, schema)?.into_pyarrow(py)
 }
 
+/// Flags repeated `tightening_id`s across all rows of a results table (`detect` flags within
+/// the table it is given; a table analysed in pieces is flagged whole here).
+#[pyfunction]
+fn flag_duplicate_ids<'py>(py: Python<'py>, results: AnyRecordBatch) -> PyResult<Bound<'py, PyAny>> {
+    let reader = results.into_reader()?;
+    let schema = reader.schema();
+    let batches = detached(py, move || {
+        let batches = reader.collect::<Result<Vec<RecordBatch>, _>>()?;
+        Ok(tightscan_core::engine::duplicates::flag_duplicate_ids(&batches)?)
+    })?;
+    PyTable::try_new(batches, schema)?.into_pyarrow(py)
+}
+
 /// Schema of `detect`'s result for an input schema.
 #[pyfunction]
 #[pyo3(signature = (schema, config=None, passthrough=None))]
@@ -231,6 +244,7 @@ fn result_columns() -> Vec<(&'static str, String, &'static str, &'static str)> {
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(detect, m)?)?;
     m.add_function(wrap_pyfunction!(result_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(flag_duplicate_ids, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(cusum_threshold, m)?)?;

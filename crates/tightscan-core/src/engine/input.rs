@@ -3,7 +3,6 @@
 //! A channel stays in the buffers Arrow (and so Python) handed over: a tightening is a pair of
 //! offsets into the channel's value buffer, read as `f32` or `f64` where it lies.
 
-use std::collections::HashMap;
 use std::sync::Arc;
 
 use arrow_array::cast::AsArray;
@@ -299,15 +298,26 @@ impl<'a> TighteningTable<'a> {
     }
 }
 
-/// Key of a tightening id for grouping long-layout samples.
+/// Key of a tightening id, for finding where long-layout tightenings start and which ids repeat.
 #[derive(Clone, Copy, PartialEq, Eq, Hash, Debug)]
-enum IdKey<'a> {
+pub(crate) enum IdKey<'a> {
     Null,
     Int(i128),
     Str(&'a str),
 }
 
-fn id_keys(ids: &dyn Array) -> Result<Vec<IdKey<'_>>> {
+impl std::fmt::Display for IdKey<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Null => write!(f, "null"),
+            Self::Int(v) => write!(f, "{v}"),
+            Self::Str(s) => write!(f, "{s:?}"),
+        }
+    }
+}
+
+/// The id of every row as a key. Integer, string and dictionary-encoded ids of either.
+pub(crate) fn id_keys(ids: &dyn Array) -> Result<Vec<IdKey<'_>>> {
     use arrow_array::types::*;
     macro_rules! ints {
         ($t:ty) => {{
@@ -329,6 +339,23 @@ fn id_keys(ids: &dyn Array) -> Result<Vec<IdKey<'_>>> {
         DataType::Utf8 => ids.as_string::<i32>().iter().map(|s| s.map_or(IdKey::Null, IdKey::Str)).collect(),
         DataType::LargeUtf8 => ids.as_string::<i64>().iter().map(|s| s.map_or(IdKey::Null, IdKey::Str)).collect(),
         DataType::Utf8View => ids.as_string_view().iter().map(|s| s.map_or(IdKey::Null, IdKey::Str)).collect(),
+        DataType::Dictionary(_, _) => {
+            let dict = ids.as_any_dictionary();
+            let values = id_keys(dict.values().as_ref())?;
+            if values.is_empty() {
+                // No values (an empty or all-null column): `normalized_keys` would panic.
+                return Ok(vec![IdKey::Null; ids.len()]);
+            }
+            let nulls = ids.logical_nulls();
+            dict.normalized_keys()
+                .into_iter()
+                .enumerate()
+                .map(|(i, k)| match values.get(k) {
+                    Some(v) if !nulls.as_ref().is_some_and(|n| n.is_null(i)) => *v,
+                    _ => IdKey::Null,
+                })
+                .collect()
+        }
         other => {
             return Err(TightscanError::schema(
                 TIGHTENING_ID,
@@ -339,12 +366,64 @@ fn id_keys(ids: &dyn Array) -> Result<Vec<IdKey<'_>>> {
     Ok(keys)
 }
 
+/// A scalar float channel of the long layout, read as f64.
+fn float_at(array: &dyn Array) -> Option<impl Fn(usize) -> f64 + '_> {
+    let (f32s, f64s) = match array.data_type() {
+        DataType::Float32 => (Some(array.as_primitive::<Float32Type>()), None),
+        DataType::Float64 => (None, Some(array.as_primitive::<Float64Type>())),
+        _ => return None,
+    };
+    Some(move |i: usize| {
+        if array.is_null(i) {
+            return f64::NAN;
+        }
+        match (f32s, f64s) {
+            (Some(a), _) => a.value(i) as f64,
+            (_, Some(a)) => a.value(i),
+            _ => f64::NAN,
+        }
+    })
+}
+
+/// Where a second curve starts inside the samples `[start, end)` of one id: the clock (`time`,
+/// else `angle`) falls back, in one sample, by more than half its span over the run to within
+/// 5 % of the span of the run's first value. A tightening's own clock never does that: time
+/// only grows, and the angle's backlash or a loosening's fall are a small or gradual part of
+/// its span; a second recording under the same id starts over from the beginning.
+fn restarts(clock: &dyn Fn(usize) -> f64, start: usize, end: usize, out: &mut Vec<usize>) {
+    if end - start < 2 {
+        return;
+    }
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for i in start..end {
+        let v = clock(i);
+        if v.is_finite() {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    let span = hi - lo;
+    let first = clock(start);
+    if !(span > 0.0 && span.is_finite() && first.is_finite()) {
+        return;
+    }
+    for i in start + 1..end {
+        let (before, now) = (clock(i - 1), clock(i));
+        if before - now > 0.5 * span && now - first <= 0.05 * span {
+            out.push(i);
+        }
+    }
+}
+
 /// Turns a long-layout batch (one row per sample) into the nested layout (one row per
-/// tightening), in order of first appearance, each tightening's samples in their order.
+/// tightening), in input order, without copying a sample: the new lists point into the
+/// original value buffers.
 ///
-/// Samples that arrive grouped (the usual case) are not copied: the new lists point into the
-/// original value buffers. Interleaved tightenings are gathered with one `take` per channel.
-/// Samples with a null id form one tightening with a null id (its status will say so).
+/// A tightening is a run of consecutive samples with the same id, so its samples must be
+/// contiguous. An id that comes back after other ids is a second tightening under that id, and
+/// so is a run whose clock starts over (see [`restarts`]): each becomes its own row, and
+/// [`super::duplicates`] reports the repeated id in every row that carries it. Nothing is
+/// merged. Samples with a null id form a tightening with a null id (its status says so).
 /// `passthrough` columns take the value of each tightening's first sample.
 pub fn nest_long(batch: &RecordBatch, passthrough: &[String]) -> Result<RecordBatch> {
     let ids = batch
@@ -352,49 +431,24 @@ pub fn nest_long(batch: &RecordBatch, passthrough: &[String]) -> Result<RecordBa
         .ok_or_else(|| TightscanError::schema(TIGHTENING_ID, "required column is missing"))?;
     let keys = id_keys(ids.as_ref())?;
     let n = keys.len();
+    let clock = [schema::TIME, schema::ANGLE]
+        .iter()
+        .find_map(|name| batch.column_by_name(name).and_then(|c| float_at(c.as_ref())));
 
-    // Group rows, visiting the hash map only at the start of each run of equal ids.
-    let mut group_of: HashMap<IdKey, usize> = HashMap::new();
-    let mut groups: Vec<Vec<(usize, usize)>> = Vec::new(); // runs [start, end) per group
+    let mut starts: Vec<usize> = Vec::new();
     let mut run_start = 0;
     for i in 1..=n {
         if i == n || keys[i] != keys[run_start] {
-            let next = groups.len();
-            let g = *group_of.entry(keys[run_start]).or_insert(next);
-            if g == next {
-                groups.push(Vec::new());
+            starts.push(run_start);
+            if let (Some(clock), false) = (&clock, keys[run_start] == IdKey::Null) {
+                restarts(clock, run_start, i, &mut starts);
             }
-            groups[g].push((run_start, i));
             run_start = i;
         }
     }
-    let contiguous = {
-        // Grouped and already in first-appearance order: the permutation is the identity.
-        let mut expected = 0;
-        groups.iter().all(|runs| {
-            runs.len() == 1 && runs[0].0 == expected && {
-                expected = runs[0].1;
-                true
-            }
-        })
-    };
-    let mut offsets = Vec::with_capacity(groups.len() + 1);
-    offsets.push(0i64);
-    let mut first_rows = Vec::with_capacity(groups.len());
-    let mut order: Vec<u32> = Vec::new();
-    let mut total = 0i64;
-    for runs in &groups {
-        first_rows.push(runs[0].0 as u32);
-        for &(s, e) in runs {
-            total += (e - s) as i64;
-            if !contiguous {
-                order.extend((s as u32)..(e as u32));
-            }
-        }
-        offsets.push(total);
-    }
-    let order = UInt32Array::from(order);
-    let first_rows = UInt32Array::from(first_rows);
+    let mut offsets: Vec<i64> = starts.iter().map(|&s| s as i64).collect();
+    offsets.push(n as i64);
+    let first_rows = UInt32Array::from(starts.iter().map(|&s| s as u32).collect::<Vec<_>>());
     let offsets = OffsetBuffer::new(ScalarBuffer::from(offsets));
 
     let mut fields: Vec<Field> = Vec::new();
@@ -403,9 +457,8 @@ pub fn nest_long(batch: &RecordBatch, passthrough: &[String]) -> Result<RecordBa
     columns.push(take(ids.as_ref(), &first_rows, None)?);
     for name in CHANNELS.iter().map(|c| c.name).chain([schema::STEP]) {
         let Some(values) = batch.column_by_name(name) else { continue };
-        let values = if contiguous { values.clone() } else { take(values.as_ref(), &order, None)? };
         let item = Arc::new(Field::new_list_field(values.data_type().clone(), true));
-        let list = LargeListArray::try_new(item.clone(), offsets.clone(), values, None)?;
+        let list = LargeListArray::try_new(item.clone(), offsets.clone(), values.clone(), None)?;
         fields.push(Field::new(name, DataType::LargeList(item), true));
         columns.push(Arc::new(list));
     }
@@ -477,13 +530,50 @@ mod tests {
     }
 
     #[test]
-    fn interleaved_long_layout_keeps_first_appearance_order() {
+    fn a_reappearing_id_is_a_second_tightening_not_merged() {
         let b = long_batch(vec!["b", "a", "b", "a", "c"], vec![1.0, 2.0, 3.0, 4.0, 5.0]);
         let nested = nest_long(&b, &[]).unwrap_or_else(|e| panic!("{e}"));
         let ids: Vec<Option<&str>> = nested.column(0).as_string::<i32>().iter().collect();
-        assert_eq!(ids, vec![Some("b"), Some("a"), Some("c")]);
-        assert_eq!(angles(&nested, 0), vec![1.0, 3.0]);
-        assert_eq!(angles(&nested, 1), vec![2.0, 4.0]);
-        assert_eq!(angles(&nested, 2), vec![5.0]);
+        assert_eq!(ids, vec![Some("b"), Some("a"), Some("b"), Some("a"), Some("c")]);
+        assert_eq!(angles(&nested, 0), vec![1.0]);
+        assert_eq!(angles(&nested, 2), vec![3.0]);
+    }
+
+    #[test]
+    fn a_curve_that_starts_over_under_its_id_is_split() {
+        // Two recordings under "a": the angle climbs to 40, then starts again from 0.
+        let first: Vec<f64> = (0..=40).map(f64::from).collect();
+        let second: Vec<f64> = (0..=30).map(f64::from).collect();
+        let angle: Vec<f64> = first.iter().chain(&second).copied().chain([7.0, 8.0]).collect();
+        let mut ids = vec!["a"; first.len() + second.len()];
+        ids.extend(["z", "z"]);
+        let nested = nest_long(&long_batch(ids, angle), &[]).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(nested.num_rows(), 3);
+        assert_eq!(angles(&nested, 0), first);
+        assert_eq!(angles(&nested, 1), second);
+        assert_eq!(angles(&nested, 2), vec![7.0, 8.0]);
+    }
+
+    #[test]
+    fn backlash_and_a_falling_angle_are_not_restarts() {
+        // 1 deg of backlash at the start of a 60 deg curve, then a loosening-like fall.
+        let mut angle: Vec<f64> = vec![0.0, 0.5, 1.0, 0.0];
+        angle.extend((1..=60).map(f64::from));
+        angle.extend((0..60).rev().map(f64::from));
+        let nested = nest_long(&long_batch(vec!["a"; angle.len()], angle.clone()), &[]).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(nested.num_rows(), 1);
+        assert_eq!(angles(&nested, 0), angle);
+    }
+
+    #[test]
+    fn dictionary_ids_key_by_value() {
+        use arrow_array::types::Int8Type;
+        use arrow_array::DictionaryArray;
+        let ids: DictionaryArray<Int8Type> = vec![Some("x"), Some("x"), None, Some("y"), Some("x")].into_iter().collect();
+        let keys = id_keys(&ids).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(keys, vec![IdKey::Str("x"), IdKey::Str("x"), IdKey::Null, IdKey::Str("y"), IdKey::Str("x")]);
+        // Found by tests/test_properties.py: a dictionary without values (all ids null).
+        let empty: DictionaryArray<Int8Type> = vec![None::<&str>, None].into_iter().collect();
+        assert_eq!(id_keys(&empty).unwrap_or_else(|e| panic!("{e}")), vec![IdKey::Null, IdKey::Null]);
     }
 }

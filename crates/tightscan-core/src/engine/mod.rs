@@ -9,6 +9,7 @@ mod analysis;
 pub mod columns;
 pub mod config;
 pub mod decision;
+pub mod duplicates;
 pub mod input;
 mod rows;
 pub mod schema;
@@ -205,7 +206,15 @@ impl Detector {
 
     /// Analyses every tightening of `batch` (nested or long layout). `first_row` numbers the
     /// rows when the table has no `tightening_id` (row numbers continue across batches).
+    /// Repeated ids are flagged within the batch ([`duplicates`]); a table given as several
+    /// batches goes through [`Detector::detect_all`], which flags them across batches.
     pub fn detect(&self, batch: &RecordBatch, passthrough: &[String], first_row: i64) -> Result<RecordBatch> {
+        let rows = self.detect_rows(batch, passthrough, first_row)?;
+        let mut flagged = duplicates::flag_duplicate_ids(std::slice::from_ref(&rows))?;
+        Ok(flagged.pop().unwrap_or(rows))
+    }
+
+    fn detect_rows(&self, batch: &RecordBatch, passthrough: &[String], first_row: i64) -> Result<RecordBatch> {
         let input_schema = batch.schema();
         let layout = schema::detect_layout(&input_schema)?;
         let out_schema = self.result_schema(&input_schema, passthrough)?;
@@ -245,7 +254,8 @@ impl Detector {
     }
 
     /// Analyses a whole table given as batches. A long-layout table is concatenated first, so
-    /// that a tightening whose samples span batches still gives exactly one row.
+    /// that a tightening whose samples span batches still gives exactly one row. Ids repeated
+    /// anywhere in the table are flagged in every row that carries them ([`duplicates`]).
     pub fn detect_all(
         &self,
         input_schema: &SchemaRef,
@@ -258,13 +268,14 @@ impl Detector {
             return Ok(vec![self.detect(&all, passthrough, first_row)?]);
         }
         let mut row = first_row;
-        batches
+        let results = batches
             .iter()
             .map(|b| {
-                let out = self.detect(b, passthrough, row);
+                let out = self.detect_rows(b, passthrough, row);
                 row += b.num_rows() as i64;
                 out
             })
-            .collect()
+            .collect::<Result<Vec<_>>>()?;
+        duplicates::flag_duplicate_ids(&results)
     }
 }

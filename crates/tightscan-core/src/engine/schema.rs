@@ -135,8 +135,12 @@ pub fn detect_layout(schema: &Schema) -> Result<Layout> {
     Ok(layout)
 }
 
-/// True for the integer and string types accepted as `tightening_id`.
+/// True for the integer and string types accepted as `tightening_id`, plain or
+/// dictionary-encoded (pandas categoricals, Parquet dictionary pages read as such).
 pub fn is_id_type(dt: &DataType) -> bool {
+    if let DataType::Dictionary(_, values) = dt {
+        return is_id_type(values);
+    }
     matches!(
         dt,
         DataType::Int8

@@ -77,6 +77,16 @@ pub enum TighteningStatus {
         /// Why not.
         reason: &'static str,
     },
+    /// Several result rows carry this tightening id (a repeated id in the nested layout; in the
+    /// long layout an id that reappears after other ids, or a curve that restarts under it).
+    /// Set after the analysis, by [`super::duplicates`]: the row keeps what its curve gave, and
+    /// the text goes on with `; as a curve: <that status>`.
+    DuplicateId {
+        /// The id as text (strings quoted).
+        id: String,
+        /// Rows carrying it.
+        count: usize,
+    },
 }
 
 impl TighteningStatus {
@@ -95,6 +105,7 @@ impl TighteningStatus {
             Self::NoElasticZone { .. } => "no_elastic_zone",
             Self::ModelMisfit { .. } => "model_misfit",
             Self::UnknownThread { .. } => "unknown_thread",
+            Self::DuplicateId { .. } => "duplicate_id",
         }
     }
 
@@ -136,6 +147,7 @@ impl fmt::Display for TighteningStatus {
                 "{code}: the elastic window is curved (curvature p = {curvature_p_value:.1e}) and a smooth curve fits it \
                  better than any break; no change is claimed"
             ),
+            Self::DuplicateId { id, count } => write!(f, "{code}: tightening_id {id} appears {count} times"),
             Self::UnknownThread { designation } => write!(
                 f,
                 "{code}: {designation:?} is not an ISO metric thread of the table (M3-M24, coarse and \
@@ -162,6 +174,7 @@ mod tests {
             TighteningStatus::FlatSignal { channel: "torque" },
             TighteningStatus::Loosening { peak_torque: -2.57, peak_angle: 3.5 },
             TighteningStatus::NoElasticZone { reason: "x" },
+            TighteningStatus::DuplicateId { id: "7".into(), count: 2 },
         ];
         for s in all {
             assert!(s.to_string().starts_with(s.code()), "{s}");

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, Iterable, Sequence, Union
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, Sequence, Union
 
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from . import _core
 from .config import ConfigLike, as_dict
+from .exceptions import SchemaError
 
 if TYPE_CHECKING:
     import pandas

@@ -13,6 +13,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+import tightscan
+
 from tightscan.cli import EXIT_CHANGES, EXIT_DATA, EXIT_OK, EXIT_USAGE, main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -91,3 +93,10 @@ def test_no_traceback_from_the_installed_command(tmp_path: Path) -> None:
     assert done.returncode == EXIT_DATA
     assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
     assert done.stderr.startswith("tightscan: error: ") and "gone.parquet" in done.stderr
+
+
+def test_version_is_printed_and_exits_zero(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"tightscan {tightscan.__version__}"

@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_contract_lists_every_result_column_in_order() -> None:
     text = (ROOT / "docs" / "data-contract.md").read_text()
     result_part = text.split("## The result table")[1]
-    names = [c[0] for c in tightscan._core.result_columns()]
+    names = [c.name for c in tightscan.result_columns()]
     positions = [result_part.find(f"| `{n}` |") for n in names]
     assert all(p >= 0 for p in positions), [n for n, p in zip(names, positions) if p < 0]
     assert positions == sorted(positions)

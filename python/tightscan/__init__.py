@@ -12,7 +12,7 @@ from __future__ import annotations
 import warnings
 
 from . import _core
-from ._api import cusum_arl, cusum_threshold, detect_batch, result_schema, simulate
+from ._api import ResultColumn, result_columns, cusum_arl, cusum_threshold, detect_batch, result_schema, simulate
 from ._scan import ScanSummary, read_results, scan_parquet
 from .config import (
     BlockConfig,
@@ -47,6 +47,8 @@ __all__ = [
     "scan_parquet",
     "read_results",
     "result_schema",
+    "result_columns",
+    "ResultColumn",
     "read_rexroth",
     "monitor_sequence",
     "monitor_regression",

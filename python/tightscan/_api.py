@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, Iterable, Iterator, Sequence, Union
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, NamedTuple, Sequence, Union
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -22,6 +22,8 @@ __all__ = [
     "cusum_threshold",
     "cusum_arl",
     "result_schema",
+    "result_columns",
+    "ResultColumn",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -48,6 +50,32 @@ def _passthrough_list(passthrough: Sequence[str] | bool | None, columns: Sequenc
     if isinstance(passthrough, str):
         return [passthrough]
     return list(passthrough)
+
+
+class ResultColumn(NamedTuple):
+    """One column of the result table: its name, Arrow type, unit ('' when none) and meaning."""
+
+    name: str
+    type: str
+    unit: str
+    meaning: str
+
+
+def result_columns() -> list[ResultColumn]:
+    """Every column :func:`detect_batch` returns (after ``tightening_id`` and before any
+    pass-through column), in order, with its Arrow type, unit and meaning.
+
+    The one source of these is the engine's schema (``crates/tightscan-core``);
+    ``docs/data-contract.md`` lists the same columns in the same order, which a test checks.
+
+    >>> import tightscan
+    >>> cols = tightscan.result_columns()
+    >>> cols[0].name, cols[0].type
+    ('status', 'Utf8')
+    >>> [c.unit for c in cols if c.name == "torque_rate"]
+    ['Nm/deg']
+    """
+    return [ResultColumn(*c) for c in _core.result_columns()]
 
 
 def result_schema(
@@ -202,6 +230,9 @@ def detect_batch(
     :func:`result_schema` gives the Arrow schema of the result before the run.
 
     ``passthrough`` copies input columns to the results (``True``: every non-channel column).
+    The result columns (``status``, ``change_detected``, ``change_angle``, ``detectors_fired``,
+    ``torque_rate``, ``mu_tot``, each detector's statistic ...) are listed with their types,
+    units and meanings by :func:`result_columns`.
 
     >>> import tightscan
     >>> curves, truth = tightscan.simulate(200, seed=1)

@@ -19,6 +19,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ._api import simulate
+from ._core import __version__
 from ._scan import ScanSummary, read_results, scan_parquet
 from .config import (
     BlockConfig,
@@ -399,6 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="tightscan",
         description="Find friction changes in bolted-joint tightening curves.",
     )
+    parser.add_argument("--version", action="version", version=f"tightscan {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     scan = sub.add_parser("scan", help="detect changes in Parquet files, write results Parquet")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, Iterable, Iterator, NamedTuple, Sequence, Union
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, NamedTuple, Sequence, Union, overload
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -196,6 +196,32 @@ def _detect_lazy(frame: Any, cfg: dict[str, Any] | None, pass_cols: list[str], b
     return flagged
 
 
+# The frame kind in is the kind out: these tell a type checker so (a polars LazyFrame gives an
+# eager polars DataFrame, see the docstring), and anything else Arrow gives a pyarrow Table.
+@overload
+def detect_batch(
+    data: "polars.DataFrame | polars.LazyFrame",
+    config: ConfigLike = None,
+    *,
+    passthrough: Sequence[str] | bool | None = None,
+    batch_rows: int = 65_536,
+) -> "polars.DataFrame": ...
+@overload
+def detect_batch(
+    data: "pandas.DataFrame",
+    config: ConfigLike = None,
+    *,
+    passthrough: Sequence[str] | bool | None = None,
+    batch_rows: int = 65_536,
+) -> "pandas.DataFrame": ...
+@overload
+def detect_batch(
+    data: Any,
+    config: ConfigLike = None,
+    *,
+    passthrough: Sequence[str] | bool | None = None,
+    batch_rows: int = 65_536,
+) -> pa.Table: ...
 def detect_batch(
     data: Any,
     config: ConfigLike = None,

@@ -90,7 +90,7 @@ def test_cli_demo_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
 
 
 def test_long_layout_split_handles_empty_batches() -> None:
-    from tightscan._scan import _split_trailing_tightening
+    from tightscan._api import _hold_back_last_tightening as _split_trailing_tightening
 
     empty = pa.record_batch({"tightening_id": pa.array([], pa.int64()), "angle": pa.array([], pa.float64())})
     done, carry = _split_trailing_tightening(empty)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, Iterable, Iterator, NamedTuple, Sequence, Union, overload
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, NamedTuple, Sequence, TypeVar, Union, overload
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -136,8 +136,12 @@ def _is_long_layout(schema: pa.Schema) -> bool:
     return not (pa.types.is_list(angle) or pa.types.is_large_list(angle) or pa.types.is_list_view(angle))
 
 
-def _hold_back_last_tightening(table: pa.Table) -> tuple[pa.Table, pa.Table]:
-    """Long layout: the last tightening of a batch may go on in the next one; keep it back."""
+_Rows = TypeVar("_Rows", pa.Table, pa.RecordBatch)
+
+
+def _hold_back_last_tightening(table: _Rows) -> tuple[_Rows, _Rows]:
+    """Long layout: the last tightening of a batch may go on in the next one; keep it back.
+    Shared by the LazyFrame stream here and the Parquet scan (``_scan.py``)."""
     if table.num_rows == 0 or "tightening_id" not in table.column_names:
         return table, table.slice(0, 0)
     ids = table.column("tightening_id")

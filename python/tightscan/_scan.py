@@ -31,7 +31,7 @@ import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
 from . import _core
-from ._api import _passthrough_list
+from ._api import _hold_back_last_tightening, _is_long_layout, _passthrough_list
 from ._progress import Progress
 from .config import ConfigLike, as_dict
 from .exceptions import DataFileError, InvalidParameterError, SchemaError
@@ -359,18 +359,6 @@ def _check_file(task: _FileTask, plan: _Plan) -> tuple[pa.Schema, list[str] | No
     return schema, cols
 
 
-def _split_trailing_tightening(batch: pa.RecordBatch) -> tuple[pa.RecordBatch, pa.RecordBatch]:
-    """Long layout: the last tightening of a batch may go on in the next one; keep it back."""
-    if batch.num_rows == 0:
-        return batch, batch
-    ids = batch.column("tightening_id")
-    last = ids[len(ids) - 1]
-    same = pc.is_null(ids) if not last.is_valid else pc.fill_null(pc.equal(ids, last), False)
-    other = pc.indices_nonzero(pc.invert(same))
-    cut = other[len(other) - 1].as_py() + 1 if len(other) else 0
-    return batch.slice(0, cut), batch.slice(cut)
-
-
 def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
     """The results of one file, batch by batch (memory bounded by ``batch_size`` rows)."""
     schema, cols = _check_file(task, plan)
@@ -422,7 +410,7 @@ def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
         if plan.long_layout:
             if carry is not None and carry.num_rows:
                 batch = pa.Table.from_batches([carry, batch]).combine_chunks().to_batches()[0]
-            batch, carry = _split_trailing_tightening(batch)
+            batch, carry = _hold_back_last_tightening(batch)
         if batch.num_rows:
             yield run(batch)
     if carry is not None and carry.num_rows:
@@ -811,7 +799,6 @@ def _plan_scan(
                 raise
             bad[task.index] = (type(e).__name__, str(e), getattr(e, "column", None))
             continue
-        angle = projected.field("angle").type
         plan = _Plan(
             config=cfg,
             pass_cols=pass_cols,
@@ -820,7 +807,7 @@ def _plan_scan(
             batch_size=batch_size,
             partition_schema=partition_schema,
             out_schema=out_schema,
-            long_layout=not (pa.types.is_list(angle) or pa.types.is_large_list(angle)),
+            long_layout=_is_long_layout(projected),
             partition_by=list(partition_by) if partition_by else None,
         )
         if "tightening_id" not in projected.names:

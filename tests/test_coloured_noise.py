@@ -4,8 +4,9 @@ test the window pre-whitened with an AR model of its noise, fitted to local resi
 (crates/tightscan-core/src/detectors/noise.rs).
 
 The curves are the built-in simulator's, noise-free, with AR(1) noise of the simulator's
-default marginal sd (0.2 % of the target torque) added here, so the noise is not the one the
-decision rule was calibrated on."""
+default marginal sd (0.2 % of the target torque) added here, so the noise is not the
+simulator's own. The rule splits alpha by the union bound (no calibration to any simulator), so
+on these curves, where the break scan and the CUSUM overlap, it runs below alpha."""
 
 from __future__ import annotations
 
@@ -45,11 +46,12 @@ def test_size_under_moderately_coloured_noise_is_nominal() -> None:
     # AR(1) with phi = 0.5; before pre-whitening the default rule alarmed on 33 % of these.
     # Binomial sd at 1 % over 1,500 curves is 0.26 points: a nominal rule falls below 0.5 % here
     # with probability 3 %, so the lower edge is 0.4 % (2.3 sd); the cell goal [0.5, 1.5] x
-    # alpha is for 4,000 curves. Measured 0.40 % here and 0.50 % over 4,000 curves (seed 171):
-    # the tests' averaging over the AR fit's uncertainty makes them a little conservative
-    # where phi is well determined.
+    # alpha is for 4,000 curves. Measured 0.40 % here with the rule calibrated to this
+    # simulator, 0.27 % with the plain union bound: conservative, below the cell goal (the
+    # tests' averaging over the AR fit's uncertainty makes them so where phi is well
+    # determined, and the two detectors overlap). The lower edge only guards a dead rule.
     results = tightscan.detect_batch(_with_ar1_noise(0.5, seed=71))
-    assert 0.004 <= _false_alarm_rate(results) <= 0.015
+    assert 0.001 <= _false_alarm_rate(results) <= 0.015
     lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
     assert 0.4 <= lag1 <= 0.6
 
@@ -61,9 +63,9 @@ def test_size_under_strongly_coloured_noise_is_nominal() -> None:
     # window and three windows before it (median phi 0.80); 3.4 % with the rundown in the fit,
     # the moments solved exactly and local quadratics (median 0.87); 1.0 % once the break scan
     # and the CUSUM average over the AR fit's uncertainty (NoiseModel::gain_log_se, a grouped
-    # jackknife). Within the goal, [0.5, 1.5] x alpha.
+    # jackknife); 0.53 % with the plain union bound instead of the calibration to this simulator.
     results = tightscan.detect_batch(_with_ar1_noise(0.85, seed=72))
-    assert 0.005 <= _false_alarm_rate(results) <= 0.015
+    assert 0.003 <= _false_alarm_rate(results) <= 0.015
     lag1 = np.nanmedian(np.array(results["noise_lag1"].to_pylist(), dtype=float))
     assert 0.82 <= lag1 <= 0.9
 
@@ -75,12 +77,13 @@ def test_size_under_noise_growing_with_the_torque_is_bounded() -> None:
     # variance alarm on the loud end (Chow's end test first): 20 % of these clean CST curves
     # before the detectors weighted the samples by the noise growth they measure
     # (NoiseModel::sd_slope), 2.1 % after (1.2 % with the same noise made constant in each
-    # curve), 1.5 % with the noise model's rundown history. The goal is 1.5 x alpha.
+    # curve), 1.5 % with the noise model's rundown history, 1.2 % with the plain union bound
+    # instead of the calibration to the built-in simulator. The goal is 1.5 x alpha.
     import independent_generator as ig
 
     curves, _ = ig.generate(ig.GeneratorConfig(n=N_CURVES, seed=73, strategy="CST", encoder_step_deg=0.1))
     results = tightscan.detect_batch(curves)
-    assert _false_alarm_rate(results) <= 0.025
+    assert _false_alarm_rate(results) <= 0.018
 
 
 @pytest.mark.slow
@@ -89,8 +92,8 @@ def test_size_under_heavy_tailed_noise_is_bounded() -> None:
     # generator's CST curves. The break scan and Chow's end test are F tests whose size holds
     # for Gaussian noise: 8.7 % false alarms before heavy-tailed windows were made Gaussian by
     # normal scores under a fitted t (Scratch::gaussianise_heavy_tails), 5.1 % after (n = 1,000;
-    # 5.7 % at this seed and size; 4.0-4.1 % with the noise model's rundown history). The goal,
-    # 1.5 x alpha, is not met yet; this guards the gain until it is.
+    # 5.7 % at this seed and size; 4.0-4.1 % with the noise model's rundown history; 1.2 % once
+    # the rule dropped its calibration to the built-in simulator). The goal is 1.5 x alpha.
     import independent_generator as ig
 
     noise = ig.NoiseConfig(colour="t4")
@@ -98,7 +101,7 @@ def test_size_under_heavy_tailed_noise_is_bounded() -> None:
         ig.GeneratorConfig(n=N_CURVES, seed=74, strategy="CST", encoder_step_deg=0.1, noise=noise)
     )
     results = tightscan.detect_batch(curves)
-    assert _false_alarm_rate(results) <= 0.055
+    assert _false_alarm_rate(results) <= 0.018
 
 
 @pytest.mark.slow
@@ -108,7 +111,8 @@ def test_size_under_the_independent_generators_coloured_noise_is_bounded() -> No
     # windows before it (median phi 0.78: too few samples, and a fixed-point bias correction
     # that stopped short), 3.8 % with the rundown's samples, local quadratics over 64-sample
     # blocks and the moment equations solved exactly (median 0.85), 1.4 % once the tests
-    # average over the AR fit's uncertainty. The goal is [0.5, 1.5] x alpha.
+    # average over the AR fit's uncertainty, 1.0 % with the plain union bound. The goal is
+    # [0.5, 1.5] x alpha.
     import independent_generator as ig
 
     noise = ig.NoiseConfig(colour="ar1", phi=0.85)
@@ -124,10 +128,10 @@ def test_size_under_the_independent_generators_coloured_noise_is_bounded() -> No
 @pytest.mark.slow
 def test_size_and_power_at_phi_0_9_on_the_independent_generator() -> None:
     # phi 0.9 (a 35 Hz filter on a 2 kHz channel), CST: 11.8 % false alarms with the plug-in
-    # AR fit, 2.1 % with the tests averaged over its uncertainty; the goal (1.5 %) is not met
-    # yet, this guards the gain. Power is what the averaging costs: abrupt friction changes of
+    # AR fit, 2.1 % with the tests averaged over its uncertainty, 1.5 % with the plain union
+    # bound instead of the calibration to the built-in simulator (the goal: 1.5 %). Power is what the averaging costs: abrupt friction changes of
     # 15-45 % were found in 0.875 of the curves at phi 0.85 before it (at 3.3 % false alarms),
-    # 0.82 after (n = 200, benches/transfer_check.py); where phi is this close to 1 the whitened
+    # 0.82 after (n = 200, benches/transfer_check.py), 0.80 with the union bound; where phi is this close to 1 the whitened
     # change is small against the noise left.
     import independent_generator as ig
 
@@ -137,7 +141,7 @@ def test_size_and_power_at_phi_0_9_on_the_independent_generator() -> None:
     # needs: 2 % of these curves get too_short (1,469 of 1,500 decided).
     decided = [v for v in tightscan.detect_batch(clean)["change_detected"].to_pylist() if v is not None]
     assert len(decided) >= 0.95 * N_CURVES
-    assert float(np.mean(decided)) <= 0.03
+    assert float(np.mean(decided)) <= 0.022
     fault = ig.FaultConfig(kind="abrupt", magnitude=(0.15, 0.45), fraction_faulty=1.0)
     noise85 = ig.NoiseConfig(colour="ar1", phi=0.85)
     faulty, _ = ig.generate(

@@ -23,15 +23,18 @@ def clean() -> pa.Table:
     return curves
 
 
-@pytest.mark.parametrize("alpha", [0.05, 0.01])
+@pytest.mark.parametrize("alpha", [0.05, 0.01, 0.005])
 def test_decision_rule_holds_its_false_alarm_rate(clean: pa.Table, alpha: float) -> None:
-    # Calibrated on 100,000 other in-control curves (engine/decision.rs DECISION_CALIBRATION); measured on
-    # this seed 4.8 % at 0.05 and 1.08 % at 0.01. Without the calibration the rule gave 4.0 % at 0.05 and 1.4 %
-    # at 0.01, both outside these bounds.
+    """The union bound holds the rule at or below alpha (no calibration to this simulator, so it
+    is conservative here where the two detectors overlap), also in the tail where encoder steps
+    mimic small breaks; and it is not dead. Measured at this seed: 2.53 % at 0.05, 0.68 % at 0.01,
+    0.43 % at 0.005. The calibration to this simulator that was dropped gave 4.8 % and 1.08 %
+    here, and 1.4-2.1 % on the independent generator; with the encoder-step check at 1.0 step
+    instead of 1.5 the bound broke in the tail (1.3 % at 0.01)."""
     results = tightscan.detect_batch(clean, config={"alpha": alpha})
     rate = _flag(results, "change_detected").mean()
     sd = np.sqrt(alpha * (1 - alpha) / clean.num_rows)
-    assert abs(rate - alpha) < max(0.01 if alpha == 0.05 else 0.003, 3 * sd), rate
+    assert 0.4 * alpha <= rate <= alpha + 2 * sd, rate
 
 
 def test_rule_keeps_every_strategy_near_alpha(clean: pa.Table) -> None:
@@ -42,17 +45,8 @@ def test_rule_keeps_every_strategy_near_alpha(clean: pa.Table) -> None:
         assert detected[strategy == s].mean() < 0.02, s
 
 
-def test_uncalibrated_union_bound_holds_in_the_tail(clean: pa.Table) -> None:
-    """With `calibrated=False` the union bound alone must hold the rule at or below alpha, also
-    where encoder steps mimic small breaks. Measured at this seed: 0.45 % at 0.005 and 0.77 % at
-    0.01; with the encoder-step check at 1.0 step instead of 1.5, 0.82 % and 1.3 %."""
-    for alpha in (0.005, 0.01):
-        rate = _flag(tightscan.detect_batch(clean, config={"alpha": alpha, "calibrated": False}), "change_detected").mean()
-        assert rate <= alpha + 2 * np.sqrt(alpha * (1 - alpha) / clean.num_rows), (alpha, rate)
-
-
 def test_other_rules_are_conservative(clean: pa.Table) -> None:
-    """Not calibrated: the union bound (any) and a subset of it (2-of-n) stay at or below alpha."""
+    """The union bound (any) and a subset of it (2-of-n) stay at or below alpha."""
     for config in ({"detectors": ["break"], "alpha": 0.05}, {"rule": "2-of-n", "alpha": 0.05}):
         rate = _flag(tightscan.detect_batch(clean, config=config), "change_detected").mean()
         assert rate <= 0.05 + 0.01, (config, rate)

@@ -117,23 +117,21 @@ class DecisionConfig:
 
     ``alpha`` is the false-alarm probability per tightening of the decision. With ``rule="any"``
     each detector of ``detectors`` gets a weighted share of it (break 3, others 1), so the
-    union bound keeps the rule at or below ``alpha``; ``"K-of-n"`` (e.g. ``"2-of-n"``) asks K
-    detectors to agree, a subset of those alarms. The default rule (any of break and cusum) is
-    ``calibrated``: its alpha is mapped through a curve measured on in-control simulation so
-    that its false-alarm rate equals ``alpha`` there (the union bound alone is conservative in
-    the bulk and, with quantised angles, not in the far tail). Detectors: ``break`` (sup-LR scan), ``l1``,
+    union bound keeps the rule at or below ``alpha`` whatever the data (no calibration to a
+    simulator: one measured on our own curves did not transfer to curves we did not
+    generate); ``"K-of-n"`` (e.g. ``"2-of-n"``) asks K detectors to agree, a subset of those
+    alarms. Detectors: ``break`` (sup-LR scan), ``l1``,
     ``cusum``, ``kde`` (needs ``ResidualTestConfig(kde=True)``).
 
     ``rule`` may also be a table of detector responses, one mapping per row, e.g.
     ``({"break": True}, {"cusum": True, "l1": True})``: a change when any row matches, a row
     matching when the detectors it names fire (``True``) or stay silent (``False``); detectors
     it does not name do not matter. Every row must require one detector to fire, so the table
-    stays within the union bound (not calibrated)."""
+    stays within the union bound."""
 
     alpha: float = _DEFAULTS["alpha"]
     rule: str | tuple[Mapping[str, bool], ...] = _DEFAULTS["rule"]
     detectors: tuple[str, ...] = tuple(_DEFAULTS["detectors"])
-    calibrated: bool = _DEFAULTS["calibrated"]
 
 
 @dataclass(frozen=True)
@@ -194,7 +192,6 @@ class DetectConfig:
             "alpha": self.decision.alpha,
             "rule": self.decision.rule if isinstance(self.decision.rule, str) else [dict(row) for row in self.decision.rule],
             "detectors": list(self.decision.detectors),
-            "calibrated": self.decision.calibrated,
             "residual_training_fraction": self.residual_tests.training_fraction,
             "kde": self.residual_tests.kde,
             "kde_alpha": self.residual_tests.kde_alpha,

@@ -48,7 +48,6 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "l1_alpha" => c.l1.alpha = get(py, &key, &v)?,
             "l1_gamma" => c.l1.gamma = get(py, &key, &v)?,
             "alpha" => c.decision.alpha = get(py, &key, &v)?,
-            "calibrated" => c.decision.calibrated = get(py, &key, &v)?,
             "rule" => c.decision.rule = parse_rule(py, &v)?,
             "detectors" => {
                 let names: Vec<String> = get(py, &key, &v)?;
@@ -98,7 +97,6 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("l1_alpha", c.l1.alpha)?;
     d.set_item("l1_gamma", c.l1.gamma)?;
     d.set_item("alpha", c.decision.alpha)?;
-    d.set_item("calibrated", c.decision.calibrated)?;
     match &c.decision.rule {
         DecisionRule::Any => d.set_item("rule", "any")?,
         DecisionRule::AtLeast(k) => d.set_item("rule", format!("{k}-of-n"))?,

@@ -63,9 +63,8 @@ impl Default for BreakConfig {
         // 1.5 steps: at 1.0 the credited false alarms of clean constant-speed curves still had
         // jumps of 1.1-1.5 steps (median 1.24; 178 in 20,000 CST curves), enough to lift the
         // union bound above its nominal rate at small alpha (1.36 x at 0.005). At 1.5 the union
-        // bound holds at every alpha of the calibration (0.82 x at 0.005), so `calibrated=False`
-        // is a valid bound again; recall of 3-5 % changes at the calibrated rate went from 99.5 %
-        // to 99.1 % (12,000 faulty curves).
+        // bound holds at every alpha measured (0.82 x at 0.005); recall of 3-5 % changes went
+        // from 99.5 % to 99.1 % (12,000 faulty curves).
         Self { alpha: None, min_jump_steps: 1.5, tail_fraction: 0.1 }
     }
 }

@@ -36,7 +36,7 @@ use schema::{Layout, TIGHTENING_ID};
 use status::TighteningStatus;
 
 pub use config::{BreakConfig, CusumConfig, DetectConfig, FrictionConfig, L1Config, ResidualTestConfig};
-pub use decision::{DecisionConfig, DecisionRule, DetectorKind, DECISION_CALIBRATION};
+pub use decision::{DecisionConfig, DecisionRule, DetectorKind};
 
 /// Validated configuration plus the threshold it implies.
 #[derive(Clone, Debug)]

@@ -17,7 +17,6 @@ import hashlib
 import json
 import os
 import re
-import sys
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -928,8 +927,7 @@ def scan_parquet(
                 todo.append(t)
         tasks = todo
 
-    enabled = sys.stderr.isatty() if progress is None else progress
-    bar = Progress("scanning files", len(tasks), enabled)
+    bar = Progress("scanning files", len(tasks), progress, unit="files")
     sink: _AtomicParquet | None = _AtomicParquet(setup.out_fs, setup.out_path, plan.out_schema) if single else None
     seen_ids: set[Any] = set()
     outcomes = _ENGINES[engine]([t for t in tasks if t.index not in bad], plan, bar)

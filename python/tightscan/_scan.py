@@ -74,6 +74,48 @@ class ScanSummary:
     resumed_files: int = 0
     engine: str = "local"
 
+    def to_dict(self) -> dict[str, Any]:
+        """The summary as plain JSON-ready data (``tightscan scan --json``): the fields above,
+        ``skipped_files`` as ``{"file", "reason"}`` objects.
+
+        >>> ScanSummary("r.parquet", files=1, tightenings=3, status_counts={"ok": 3}).to_dict()["status_counts"]
+        {'ok': 3}
+        """
+        return {
+            "destination": self.destination,
+            "files": self.files,
+            "resumed_files": self.resumed_files,
+            "tightenings": self.tightenings,
+            "samples": self.samples,
+            "changes": self.changes,
+            "status_counts": dict(sorted(self.status_counts.items())),
+            "skipped_files": [{"file": f, "reason": r} for f, r in self.skipped_files],
+            "seconds": self.seconds,
+            "engine": self.engine,
+        }
+
+    def _repr_html_(self) -> str:
+        """A small table for notebooks: counts, then tightenings per status code."""
+        from ._html import grid_table, key_value_table
+
+        rate = self.samples / self.seconds / 1e6 if self.seconds > 0 else float("nan")
+        rows: list[tuple[str, Any]] = [
+            ("files", self.files),
+            ("tightenings", self.tightenings),
+            ("samples", self.samples),
+            ("changes found", self.changes),
+            ("seconds", self.seconds),
+            ("M samples/s", rate),
+            ("engine", self.engine),
+        ]
+        if self.resumed_files:
+            rows.append(("resumed files", self.resumed_files))
+        out = key_value_table(f"tightscan scan: {self.destination}", rows)
+        out += grid_table("tightenings by status", ["status", "tightenings"], sorted(self.status_counts.items()))
+        if self.skipped_files:
+            out += grid_table("skipped files", ["file", "reason"], self.skipped_files)
+        return out
+
     def _add(self, stats: "_Stats") -> None:
         self.tightenings += stats.tightenings
         self.samples += stats.samples

@@ -67,8 +67,6 @@ class SequenceMonitor:
 
         groups = self.groups
         if "first_alarm_order" in groups.column_names and groups.num_rows:
-            import pyarrow.compute as pc
-
             order = pc.sort_indices(pc.is_null(groups.column("first_alarm_order")))
             groups = groups.take(order)
         shown = 20

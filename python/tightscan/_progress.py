@@ -61,7 +61,8 @@ class Progress:
                 MofNCompleteColumn(),
                 _rate_column(unit),
                 TimeRemainingColumn(),
-                console=Console(stderr=True),
+                # drawn as on a terminal: where it shows, it was asked for (a terminal, or forced)
+                console=Console(stderr=True, force_terminal=True),
                 transient=True,
             )
             self.bar.start()

@@ -5,6 +5,7 @@ The defaults come from the Rust core (``_core.default_config()``): one source of
 
 from __future__ import annotations
 
+import collections.abc
 import dataclasses
 import os
 import sys
@@ -251,7 +252,7 @@ def _toml_value(value: Any, hint: Any, where: str, source: str) -> Any:
             (item,) = typing.get_args(option)[:1]
             if item is str and all(isinstance(v, str) for v in value):
                 return tuple(value)
-            if typing.get_origin(item) is Mapping and all(
+            if typing.get_origin(item) is collections.abc.Mapping and all(
                 isinstance(v, dict) and all(isinstance(b, bool) for b in v.values()) for v in value
             ):
                 return tuple(dict(v) for v in value)

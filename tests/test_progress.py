@@ -1,0 +1,60 @@
+"""The progress bar: off where stderr is no terminal (pytest's capture, a pipe, a log file),
+on when forced (``enabled=True`` or TIGHTSCAN_PROGRESS=1), always on stderr, with throughput."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from tightscan._progress import PROGRESS_ENV, Progress, _rate_column, progress_enabled
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_off_when_stderr_is_not_a_terminal(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(PROGRESS_ENV, raising=False)
+    assert not sys.stderr.isatty()  # pytest captures it
+    assert not progress_enabled(None)
+    assert not Progress("x", 3, None).enabled
+
+
+def test_forced_on_by_the_caller_or_the_environment(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv(PROGRESS_ENV, "1")
+    assert progress_enabled(None) and not progress_enabled(False)  # an explicit False (--no-progress) wins
+    monkeypatch.setenv(PROGRESS_ENV, "0")
+    assert not progress_enabled(None) and progress_enabled(True)
+    bar = Progress("counting", 3, True, unit="files")
+    assert bar.enabled
+    bar.advance(3)
+    bar.close()
+    assert capsys.readouterr().out == ""  # the bar never writes to stdout
+
+
+def test_throughput_column_reads_items_per_second() -> None:
+    column = _rate_column("tightenings")
+    assert column.render(SimpleNamespace(finished_speed=None, speed=1234.56)).plain == "1,234.6 tightenings/s"
+    assert column.render(SimpleNamespace(finished_speed=None, speed=None)).plain == ""
+
+
+def test_forced_bar_goes_to_stderr_and_json_stays_clean(tmp_path: Path) -> None:
+    """Through a pipe, with the bar forced on: stdout is the JSON alone, the bar is on stderr."""
+    env = dict(os.environ, PYTHONPATH=str(REPO / "python"), TIGHTSCAN_PROGRESS="1", COLUMNS="120")
+    out = tmp_path / "s.parquet"
+    done = subprocess.run(
+        [sys.executable, "-m", "tightscan", "simulate", "-n", "2500", "-o", str(out), "--json"],
+        capture_output=True, text=True, env=env, timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["tightenings"] == 2500
+    assert "simulating" in done.stderr and "wrote 2,500 tightenings" in done.stderr
+    quiet = subprocess.run(
+        [sys.executable, "-m", "tightscan", "simulate", "-n", "2500", "-o", str(out), "--quiet"],
+        capture_output=True, text=True, env=env, timeout=120,
+    )
+    assert (quiet.returncode, quiet.stdout, quiet.stderr) == (0, "", "")  # --quiet turns the forced bar off

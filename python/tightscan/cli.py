@@ -372,6 +372,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         for key in ("magnitude_range", "onset_fraction_range", "mu_th_range", "mu_b_range", "joint_stiffness_range")
         if getattr(args, key) is not None
     }
+    for path in (args.output, truth):
+        Path(path).parent.mkdir(parents=True, exist_ok=True)  # `-o data/day1.parquet` on a fresh tree
     started = time.perf_counter()
     counts = write_simulation(
         args.n,

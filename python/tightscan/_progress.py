@@ -76,6 +76,11 @@ class Progress:
         if self.bar is not None:
             self.bar.advance(self.task, n)
 
+    def describe(self, description: str) -> None:
+        """Replaces the text before the bar (e.g. with a running count of what the items hold)."""
+        if self.bar is not None:
+            self.bar.update(self.task, description=description)
+
     def close(self) -> None:
         if self.bar is not None:
             self.bar.stop()

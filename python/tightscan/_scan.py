@@ -1006,6 +1006,9 @@ def scan_parquet(
                 sink.write(outcome.table)
             summary.files += 1
             summary._add(outcome.stats)
+            if bar.enabled:  # files/s is the bar's rate; the tightenings and their rate beside it
+                rate = summary.tightenings / max(time.perf_counter() - started, 1e-9)
+                bar.describe(f"scanning files: {summary.tightenings:,} tightenings, {rate:,.0f}/s")
         outcomes.close()  # the engine lets go of its workers before the results are published
         if sink is not None:
             sink.commit()

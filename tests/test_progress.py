@@ -63,3 +63,25 @@ def test_quiet_turns_a_forced_bar_off(tmp_path: Path, monkeypatch: pytest.Monkey
     assert capsys.readouterr() == ("", "")
     assert main(["simulate", "-n", "10", "-o", str(tmp_path / "s.parquet")]) == 0
     assert "simulating" in capsys.readouterr().err  # and without --quiet the forced bar draws
+
+
+def test_diagnose_bar_reaches_its_total(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The stages of diagnose add up to the bar's total, however many rounds the loop needs."""
+    import tightscan
+
+    module = sys.modules["tightscan.diagnose"]
+    bars: list[list[int]] = []
+
+    class Recording(Progress):
+        def __init__(self, description: str, total: int, enabled: bool | None, unit: str = "items") -> None:
+            super().__init__(description, total, False)
+            bars.append([total, 0])
+
+        def advance(self, n: int = 1) -> None:
+            bars[-1][1] += n
+
+    monkeypatch.setattr(module, "Progress", Recording)
+    curves, _ = tightscan.simulate(40, seed=5, fault_fraction=0.0)
+    for max_effects in (0, 2):
+        tightscan.diagnose(curves, max_effects=max_effects, folds=3, grouping_factors=None, progress=True)
+    assert bars == [[4, 4], [6, 6]]

@@ -50,6 +50,8 @@ $(VENV)/.deps: pyproject.toml
 	$(PY) -m pip install --quiet "duckdb>=1.1" "pandas>=2.2"
 	# mypy sees pandas' types (detect_batch's overloads: pandas in, pandas out; tests/test_typing.py)
 	$(PY) -m pip install --quiet pandas-stubs
+	# tightscan config --show writes TOML with tomli-w (a core dependency in pyproject.toml; issue 14)
+	$(PY) -m pip install --quiet "tomli-w>=1.0"
 	touch $@
 
 $(VENV)/.built: $(VENV)/.deps $(RUST_SOURCES) $(PY_SOURCES)

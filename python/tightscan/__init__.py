@@ -24,6 +24,8 @@ from .config import (
     L1Config,
     DecisionConfig,
     ResidualTestConfig,
+    config_from_toml,
+    config_to_toml,
 )
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
 from .diagnose import diagnose
@@ -68,6 +70,8 @@ __all__ = [
     "ResidualTestConfig",
     "L1Config",
     "DecisionConfig",
+    "config_from_toml",
+    "config_to_toml",
     "TightscanError",
     "SchemaError",
     "InvalidParameterError",

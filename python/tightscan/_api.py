@@ -61,6 +61,15 @@ class ResultColumn(NamedTuple):
     meaning: str
 
 
+class ResultColumns(list[ResultColumn]):
+    """The list of :func:`result_columns`, shown as a table in a notebook."""
+
+    def _repr_html_(self) -> str:
+        from ._html import grid_table
+
+        return grid_table(f"{len(self)} result columns", ["column", "type", "unit", "meaning"], self)
+
+
 def result_columns() -> list[ResultColumn]:
     """Every column :func:`detect_batch` returns (after ``tightening_id`` and before any
     pass-through column), in order, with its Arrow type, unit and meaning.
@@ -75,7 +84,7 @@ def result_columns() -> list[ResultColumn]:
     >>> [c.unit for c in cols if c.name == "torque_rate"]
     ['Nm/deg']
     """
-    return [ResultColumn(*c) for c in _core.result_columns()]
+    return ResultColumns(ResultColumn(*c) for c in _core.result_columns())
 
 
 def result_schema(

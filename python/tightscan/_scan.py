@@ -17,7 +17,6 @@ import hashlib
 import json
 import os
 import re
-import sys
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -74,6 +73,48 @@ class ScanSummary:
     skipped_files: list[tuple[str, str]] = field(default_factory=list)
     resumed_files: int = 0
     engine: str = "local"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The summary as plain JSON-ready data (``tightscan scan --json``): the fields above,
+        ``skipped_files`` as ``{"file", "reason"}`` objects.
+
+        >>> ScanSummary("r.parquet", files=1, tightenings=3, status_counts={"ok": 3}).to_dict()["status_counts"]
+        {'ok': 3}
+        """
+        return {
+            "destination": self.destination,
+            "files": self.files,
+            "resumed_files": self.resumed_files,
+            "tightenings": self.tightenings,
+            "samples": self.samples,
+            "changes": self.changes,
+            "status_counts": dict(sorted(self.status_counts.items())),
+            "skipped_files": [{"file": f, "reason": r} for f, r in self.skipped_files],
+            "seconds": self.seconds,
+            "engine": self.engine,
+        }
+
+    def _repr_html_(self) -> str:
+        """A small table for notebooks: counts, then tightenings per status code."""
+        from ._html import grid_table, key_value_table
+
+        rate = self.samples / self.seconds / 1e6 if self.seconds > 0 else float("nan")
+        rows: list[tuple[str, Any]] = [
+            ("files", self.files),
+            ("tightenings", self.tightenings),
+            ("samples", self.samples),
+            ("changes found", self.changes),
+            ("seconds", self.seconds),
+            ("M samples/s", rate),
+            ("engine", self.engine),
+        ]
+        if self.resumed_files:
+            rows.append(("resumed files", self.resumed_files))
+        out = key_value_table(f"tightscan scan: {self.destination}", rows)
+        out += grid_table("tightenings by status", ["status", "tightenings"], sorted(self.status_counts.items()))
+        if self.skipped_files:
+            out += grid_table("skipped files", ["file", "reason"], self.skipped_files)
+        return out
 
     def _add(self, stats: "_Stats") -> None:
         self.tightenings += stats.tightenings
@@ -928,8 +969,7 @@ def scan_parquet(
                 todo.append(t)
         tasks = todo
 
-    enabled = sys.stderr.isatty() if progress is None else progress
-    bar = Progress("scanning files", len(tasks), enabled)
+    bar = Progress("scanning files", len(tasks), progress, unit="files")
     sink: _AtomicParquet | None = _AtomicParquet(setup.out_fs, setup.out_path, plan.out_schema) if single else None
     seen_ids: set[Any] = set()
     outcomes = _ENGINES[engine]([t for t in tasks if t.index not in bad], plan, bar)
@@ -966,6 +1006,9 @@ def scan_parquet(
                 sink.write(outcome.table)
             summary.files += 1
             summary._add(outcome.stats)
+            if bar.enabled:  # files/s is the bar's rate; the tightenings and their rate beside it
+                rate = summary.tightenings / max(time.perf_counter() - started, 1e-9)
+                bar.describe(f"scanning files: {summary.tightenings:,} tightenings, {rate:,.0f}/s")
         outcomes.close()  # the engine lets go of its workers before the results are published
         if sink is not None:
             sink.commit()

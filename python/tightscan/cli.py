@@ -1,33 +1,42 @@
-"""Command line: `tightscan scan | simulate | demo | import rexroth | diagnose`.
+"""Command line: `tightscan scan | simulate | demo | import rexroth | diagnose | config`.
 
 Exit codes: 0 done; 1 changes found, with `scan --fail-on-change`; 2 usage (bad arguments or
 parameter values); 3 data (a file or column that breaks the data contract, files that failed to
 import). Errors are one line on stderr naming the file or column, never a traceback.
+
+Output: `--json` (scan, simulate, import, diagnose) prints one JSON object on stdout and nothing
+else there; what is printed for people then goes to stderr. `--quiet` prints errors only (the
+JSON still, when asked). Progress bars draw on stderr on a terminal (`--no-progress`, `--quiet`
+or TIGHTSCAN_PROGRESS=0 turn them off, TIGHTSCAN_PROGRESS=1 forces them on).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import math
 import re
 import sys
+import time
 import warnings
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence, TextIO
 
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ._api import simulate
+from ._progress import Progress
 from ._core import __version__
 from ._scan import ScanSummary, read_results, scan_parquet
 from .config import (
-    BlockConfig,
     CusumConfig,
     DecisionConfig,
     DetectConfig,
-    ElasticZoneConfig,
-    ResidualTestConfig,
+    config_from_toml,
+    config_to_toml,
 )
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
 from .rexroth import DuplicateRunWarning, import_summary, rexroth_files, write_rexroth
@@ -37,7 +46,8 @@ EXIT_CHANGES = 1
 EXIT_USAGE = 2
 EXIT_DATA = 3
 
-SIMULATE_CHUNK = 10_000
+SIMULATE_CHUNK = 10_000  # tightenings per Parquet row group (and in memory at once)
+SIMULATE_STEP = 1_000  # tightenings per simulator call: what the progress bar counts
 # Switchable effects of the simulator (`--effect NAME=VALUE`), with their units; 0 is off.
 EFFECTS = {
     "speed_friction": "a in mu (1 + a ln(v / 30 rpm)), |a| <= 0.25",
@@ -50,29 +60,91 @@ EFFECTS = {
 
 
 def _config(args: argparse.Namespace) -> DetectConfig:
-    return DetectConfig(
-        zone=ElasticZoneConfig(),
-        blocks=BlockConfig(),
-        cusum=CusumConfig(kappa=args.kappa, arl0=args.arl0, threshold=args.threshold),
-        residual_tests=ResidualTestConfig(kde=args.kde),
-        decision=DecisionConfig(
-            alpha=args.alpha,
-            rule=args.rule,
-            detectors=tuple(args.detectors) if args.detectors else DecisionConfig().detectors,
-        ),
+    """The defaults, then `--config FILE.toml`, then the detector flags given on the command line
+    (their argparse default is None: "not given")."""
+    config = config_from_toml(args.config) if args.config else DetectConfig()
+    cusum: dict[str, Any] = {}
+    if args.kappa is not None:
+        cusum["kappa"] = args.kappa
+    if args.arl0 is not None:
+        cusum["arl0"] = args.arl0
+        cusum["threshold"] = None  # an explicit --arl0 wins over a file's threshold
+    if args.threshold is not None:
+        cusum["threshold"] = args.threshold
+    decision: dict[str, Any] = {}
+    if args.alpha is not None:
+        decision["alpha"] = args.alpha
+    if args.rule is not None:
+        decision["rule"] = args.rule
+    if args.detectors:
+        decision["detectors"] = tuple(args.detectors)
+    return dataclasses.replace(
+        config,
+        cusum=dataclasses.replace(config.cusum, **cusum),
+        decision=dataclasses.replace(config.decision, **decision),
+        residual_tests=dataclasses.replace(config.residual_tests, kde=True) if args.kde else config.residual_tests,
     )
+
+
+def _add_output_options(p: argparse.ArgumentParser, json_flag: bool = True) -> None:
+    if json_flag:
+        p.add_argument("--json", action="store_true", help="print a JSON summary on stdout (nothing else there)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print errors only (and the --json summary when asked)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _json_on_stdout(args: argparse.Namespace) -> bool:
+    return args.json is True or args.json == "-"
+
+
+def _info(args: argparse.Namespace) -> TextIO | None:
+    """Where text for people goes: stdout; stderr when stdout carries the JSON; nowhere with --quiet."""
+    if args.quiet:
+        return None
+    return sys.stderr if _json_on_stdout(args) else sys.stdout
+
+
+def _say(args: argparse.Namespace, text: str) -> None:
+    stream = _info(args)
+    if stream is not None:
+        print(text, file=stream)
+
+
+def _progress(args: argparse.Namespace) -> bool | None:
+    """False when switched off, else None: the bar shows on a terminal (or TIGHTSCAN_PROGRESS=1)."""
+    return False if args.no_progress or args.quiet else None
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def _print_json(document: dict[str, Any]) -> None:
+    print(json.dumps(_jsonable(document), indent=2, allow_nan=False))
 
 
 def _add_detect_options(p: argparse.ArgumentParser) -> None:
     d = CusumConfig()
     decision = DecisionConfig()
     p.add_argument(
+        "--config",
+        default=None,
+        metavar="FILE.toml",
+        help="detector parameters from a TOML file (`tightscan config --show` prints them all); flags given here override it",
+    )
+    p.add_argument(
         "--alpha",
         type=float,
-        default=decision.alpha,
-        help="false-alarm probability per tightening of change_detected (default %(default)s)",
+        default=None,
+        help=f"false-alarm probability per tightening of change_detected (default {decision.alpha})",
     )
-    p.add_argument("--rule", default=decision.rule, help="'any' or 'K-of-n' (default %(default)s)")
+    p.add_argument("--rule", default=None, help=f"'any' or 'K-of-n' (default {decision.rule})")
     p.add_argument(
         "--detectors",
         nargs="+",
@@ -81,24 +153,23 @@ def _add_detect_options(p: argparse.ArgumentParser) -> None:
         help=f"detectors of the rule: break, l1, cusum, kde (default {' '.join(decision.detectors)})",
     )
     p.add_argument("--kde", action="store_true", help="run the kernel-density test (about 1 ms per tightening)")
-    p.add_argument("--kappa", type=float, default=d.kappa, help="CUSUM drift in sigma units (default %(default)s)")
+    p.add_argument("--kappa", type=float, default=None, help=f"CUSUM drift in sigma units (default {d.kappa})")
     p.add_argument(
         "--arl0",
         type=float,
-        default=d.arl0,
+        default=None,
         help="in-control ARL in blocks that sets h (default: from the CUSUM's share of --alpha)",
     )
     p.add_argument("--threshold", type=float, default=None, help="explicit CUSUM threshold h (overrides --arl0)")
     p.add_argument("--passthrough", nargs="*", default=None, metavar="COLUMN", help="input columns to copy into the results")
     p.add_argument("--batch-size", type=int, default=8192, help="rows per streamed batch (default %(default)s)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def print_summary(summary: ScanSummary, by_strategy: pa.Table | None = None) -> None:
+def print_summary(summary: ScanSummary, by_strategy: pa.Table | None = None, file: TextIO | None = None) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    console = Console()
+    console = Console(file=file)
     t = Table(title=f"tightscan: {summary.destination}", show_header=False)
     t.add_row("files", f"{summary.files}")
     t.add_row("tightenings", f"{summary.tightenings:,}")
@@ -200,7 +271,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
         filter=row_filter,
         passthrough=passthrough,
         batch_size=args.batch_size,
-        progress=False if args.no_progress else None,
+        progress=_progress(args),
         engine=args.engine,
         partition_by=args.partition_by,
         on_bad_file=args.on_bad_file,
@@ -210,21 +281,59 @@ def cmd_scan(args: argparse.Namespace) -> int:
         results = read_results(args.output, columns=["tightening_id", "strategy", "change_detected"])
     except TightscanError:
         results = None  # no strategy column passed through: no table by strategy
-    print_summary(summary, _strategy_table(results, None) if results is not None else None)
-    if summary.resumed_files:
-        print(f"{summary.resumed_files:,} input files were complete already (--resume) and not read again")
-    for path, reason in summary.skipped_files:
-        print(f"skipped {path}: {reason}")
-    return EXIT_CHANGES if args.fail_on_change and summary.changes else EXIT_OK
+    by_strategy = _strategy_table(results, None) if results is not None else None
+    code = EXIT_CHANGES if args.fail_on_change and summary.changes else EXIT_OK
+    info = _info(args)
+    if info is not None:
+        print_summary(summary, by_strategy, file=info)
+        if summary.resumed_files:
+            print(f"{summary.resumed_files:,} input files were complete already (--resume) and not read again", file=info)
+        for path, reason in summary.skipped_files:
+            print(f"skipped {path}: {reason}", file=info)
+    if args.json:
+        _print_json(
+            {
+                "command": "scan",
+                "version": __version__,
+                **summary.to_dict(),
+                "by_strategy": by_strategy.to_pylist() if by_strategy is not None else None,
+                "exit_code": code,
+                "config": dataclasses.asdict(_config(args)),
+            }
+        )
+    return code
 
 
-def write_simulation(n: int, seed: int, output: str, truth_output: str | None, **kwargs: object) -> None:
-    """Simulates in chunks so that memory stays bounded for millions of tightenings."""
+def write_simulation(
+    n: int,
+    seed: int,
+    output: str,
+    truth_output: str | None,
+    progress: bool | None = False,
+    chunk: int = SIMULATE_CHUNK,
+    step: int = SIMULATE_STEP,
+    **kwargs: object,
+) -> dict[str, int]:
+    """Simulates in chunks so that memory stays bounded for millions of tightenings; returns
+    the counts of what it wrote (``tightenings``, ``samples``, ``with_change``).
+
+    Each chunk of ``chunk`` tightenings is one Parquet row group, generated ``step`` at a time
+    so that the progress bar moves. The data do not depend on either: the simulator seeds
+    tightening i from (seed, first_id + i) alone, so any split gives the rows of one call.
+    """
     writer = truth_writer = None
+    counts = {"tightenings": 0, "samples": 0, "with_change": 0}
+    bar = Progress("simulating", n, progress, unit="tightenings")
     try:
-        for first in range(0, n, SIMULATE_CHUNK):
-            count = min(SIMULATE_CHUNK, n - first)
-            curves, truth = simulate(count, seed=seed, first_id=first, **kwargs)  # type: ignore[arg-type]
+        for first in range(0, n, chunk):
+            count = min(chunk, n - first)
+            parts = []
+            for part_first in range(first, first + count, step):
+                part = simulate(min(step, first + count - part_first), seed=seed, first_id=part_first, **kwargs)  # type: ignore[arg-type]
+                parts.append(part)
+                bar.advance(part[0].num_rows)
+            curves = pa.concat_tables([c for c, _ in parts])
+            truth = pa.concat_tables([t for _, t in parts])
             if writer is None:
                 writer = pq.ParquetWriter(output, curves.schema)
                 if truth_output:
@@ -232,11 +341,16 @@ def write_simulation(n: int, seed: int, output: str, truth_output: str | None, *
             writer.write_table(curves)
             if truth_writer is not None:
                 truth_writer.write_table(truth)
+            counts["tightenings"] += curves.num_rows
+            counts["samples"] += int(pc.sum(pc.list_value_length(curves.column("torque"))).as_py() or 0)
+            counts["with_change"] += int(pc.sum(truth.column("has_change")).as_py() or 0)
     finally:
+        bar.close()
         if writer is not None:
             writer.close()
         if truth_writer is not None:
             truth_writer.close()
+    return counts
 
 
 def _effect(text: str) -> tuple[str, float]:
@@ -253,23 +367,40 @@ def _effect(text: str) -> tuple[str, float]:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     truth = args.truth or str(Path(args.output).with_name(Path(args.output).stem + "-truth.parquet"))
-    ranges = {
+    ranges: dict[str, Any] = {
         key: tuple(getattr(args, key))
         for key in ("magnitude_range", "onset_fraction_range", "mu_th_range", "mu_b_range", "joint_stiffness_range")
         if getattr(args, key) is not None
     }
-    write_simulation(
+    for path in (args.output, truth):
+        Path(path).parent.mkdir(parents=True, exist_ok=True)  # `-o data/day1.parquet` on a fresh tree
+    started = time.perf_counter()
+    counts = write_simulation(
         args.n,
         args.seed,
         args.output,
         truth,
+        progress=_progress(args),
         with_clamp_force=args.clamp_force,
         fault_fraction=args.fault_fraction,
         with_yield=args.with_yield,
         **ranges,
         **dict(args.effect or []),
     )
-    print(f"wrote {args.n:,} tightenings to {args.output} and their ground truth to {truth}")
+    seconds = time.perf_counter() - started
+    _say(args, f"wrote {args.n:,} tightenings to {args.output} and their ground truth to {truth}")
+    if args.json:
+        _print_json(
+            {
+                "command": "simulate",
+                "version": __version__,
+                "output": args.output,
+                "truth": truth,
+                "seed": args.seed,
+                **counts,
+                "seconds": seconds,
+            }
+        )
     return 0
 
 
@@ -281,7 +412,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     stamp = out / f".dataset-n{args.n}-seed{args.seed}"
     if not stamp.exists() or not curves.exists() or not truth.exists():
         print(f"simulating the built-in dataset: {args.n:,} tightenings (seed {args.seed}) -> {curves}")
-        write_simulation(args.n, args.seed, str(curves), str(truth))
+        write_simulation(args.n, args.seed, str(curves), str(truth), progress=False if args.no_progress else None)
         for old in out.glob(".dataset-*"):
             old.unlink()
         stamp.touch()
@@ -314,19 +445,36 @@ def cmd_import_rexroth(args: argparse.Namespace) -> int:
             labels=args.labels,
             on=args.on,
             keep_redundant=args.keep_redundant,
-            progress=False if args.no_progress else None,
+            progress=_progress(args),
             compression=args.compression,
         )
     written = pq.read_table(args.output, columns=["tightening_id", "file_name", "import_status", "duplicate_id"])
     s = import_summary(written, files.skipped)
     detail = f" ({', '.join(f'{c}: {n:,}' for c, n in sorted(s.failure_codes.items()))})" if s.failure_codes else ""
-    print(
+    _say(
+        args,
         f"{rows:,} Rexroth runs written to {args.output}: {s.imported:,} imported, {s.failed:,} failed{detail}, "
-        f"{s.skipped:,} files skipped (not *.json)"
+        f"{s.skipped:,} files skipped (not *.json)",
     )
     for name, status in s.first_failures:
-        print(f"  failed: {name}: {status}")
-    if s.duplicates:
+        _say(args, f"  failed: {name}: {status}")
+    if args.json:
+        _print_json(
+            {
+                "command": "import rexroth",
+                "version": __version__,
+                "output": args.output,
+                "runs": rows,
+                "imported": s.imported,
+                "failed": s.failed,
+                "skipped": s.skipped,
+                "failure_codes": dict(sorted(s.failure_codes.items())),
+                "first_failures": [{"file": name, "import_status": status} for name, status in s.first_failures],
+                "duplicates": [{"tightening_id": tid, "files": list(names)} for tid, names in s.duplicates.items()],
+                "exit_code": EXIT_DATA if s.failed else EXIT_OK,
+            }
+        )
+    if s.duplicates and not args.quiet:
         shown = "; ".join(f"{tid}: {', '.join(names)}" for tid, names in list(s.duplicates.items())[:5])
         more = f"; and {len(s.duplicates) - 5:,} more" if len(s.duplicates) > 5 else ""
         print(f"warning: {len(s.duplicates):,} runs come from more than one file (column duplicate_id): {shown}{more}", file=sys.stderr)
@@ -344,7 +492,7 @@ def cmd_import_rexroth(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from .diagnose import diagnose, load_table, write_report
 
-    table = load_table(args.input)
+    table = load_table(args.input, progress=_progress(args))
     if args.limit is not None:
         table = table.slice(0, args.limit)
     group_by: Sequence[str] | str | None = "auto"
@@ -362,22 +510,32 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         max_effects=args.max_effects,
         group_by=group_by,
         seed=args.seed,
+        progress=_progress(args),
     )
-    result.to_json(args.json)
+    if args.json is not None and not _json_on_stdout(args):
+        result.to_json(args.json)
     figures = write_report(result, Path(args.report) / "figures") if args.report else []
-    print_diagnosis(result)
-    print(f"wrote {args.json}" + (f" and {len(figures)} figures to {Path(args.report) / 'figures'}" if figures else ""))
+    info = _info(args)
+    if info is not None:
+        print_diagnosis(result, file=info)
+    written = [args.json] if args.json is not None and not _json_on_stdout(args) else []
+    if figures:
+        written.append(f"{len(figures)} figures to {Path(args.report) / 'figures'}")
+    if written:
+        _say(args, "wrote " + " and ".join(written))
+    if _json_on_stdout(args):
+        print(result.to_json())
     return 0
 
 
-def print_diagnosis(result: object) -> None:
+def print_diagnosis(result: object, file: TextIO | None = None) -> None:
     from rich.console import Console
     from rich.table import Table
 
     from .diagnose import Diagnosis
 
     assert isinstance(result, Diagnosis)
-    console = Console()
+    console = Console(file=file)
     t = Table(title=f"tightscan diagnose: {result.details.get('tightenings', 0):,} tightenings", show_header=True)
     for name in ("level", "effect", "significant", "RMSE after", "gain"):
         t.add_column(name)
@@ -393,6 +551,11 @@ def print_diagnosis(result: object) -> None:
         )
     console.print(t)
     console.print(f"unexplained structure left: {'yes' if result.unexplained_structure else 'no'}")
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    print(config_to_toml(config_from_toml(args.config) if args.config else DetectConfig()), end="")
+    return EXIT_OK
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -436,6 +599,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="where files are scanned: this process, the Dask cluster or Ray (default %(default)s)",
     )
     scan.add_argument("--fail-on-change", action="store_true", help="exit with 1 when a change is found (for CI and scripts)")
+    _add_output_options(scan)
     scan.set_defaults(func=cmd_scan)
 
     sim = sub.add_parser("simulate", help="write labelled synthetic tightenings as Parquet")
@@ -461,6 +625,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help="switch an effect on (repeatable): " + "; ".join(f"{k}: {v}" for k, v in EFFECTS.items()),
     )
+    _add_output_options(sim)
     sim.set_defaults(func=cmd_simulate)
 
     demo = sub.add_parser("demo", help="scan the built-in dataset and compare with its ground truth")
@@ -489,7 +654,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rex.add_argument("--keep-redundant", action="store_true", help="also write the torque_red and angle_red channels")
     rex.add_argument("--compression", choices=["zstd", "snappy"], default="zstd", help="Parquet compression (default %(default)s)")
-    rex.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_output_options(rex)
     rex.set_defaults(func=cmd_import_rexroth)
 
     diag = sub.add_parser(
@@ -500,7 +665,15 @@ def build_parser() -> argparse.ArgumentParser:
         "(docs/diagnose-s01.md).",
     )
     diag.add_argument("input", metavar="INPUT", help="Rexroth export directory (runs/*.json or *.json), Parquet file or directory")
-    diag.add_argument("--json", required=True, metavar="OUT.json", help="where the diagnosis goes (JSON)")
+    diag.add_argument(
+        "--json",
+        nargs="?",
+        const="-",
+        default=None,
+        metavar="OUT.json",
+        help="write the diagnosis (JSON) to OUT.json; without a file name, or '-', print it on stdout "
+        "(nothing else there); give INPUT before a bare --json",
+    )
     diag.add_argument("--report", default=None, metavar="DIR", help="also write figures to DIR/figures/diagnose-*.png")
     diag.add_argument("--folds", type=int, default=5, help="K of the K-fold split across tightenings (default %(default)s)")
     diag.add_argument("--alpha", type=float, default=0.01, help="family-wise level of each round (default %(default)s)")
@@ -516,7 +689,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     diag.add_argument("--limit", type=int, default=None, metavar="N", help="only the first N tightenings")
     diag.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+    _add_output_options(diag, json_flag=False)
     diag.set_defaults(func=cmd_diagnose)
+
+    conf = sub.add_parser(
+        "config",
+        help="print the detector parameters as TOML (for --config)",
+        description="Print every detector parameter as TOML: the defaults, or a --config file's values on top of them "
+        "(which checks the file). Save it, edit it, and pass it to `scan --config`.",
+    )
+    conf.add_argument("--show", action="store_true", required=True, help="print the parameters as TOML")
+    conf.add_argument("--config", default=None, metavar="FILE.toml", help="show this file's parameters on top of the defaults")
+    conf.set_defaults(func=cmd_config)
     return parser
 
 

@@ -5,6 +5,12 @@ The defaults come from the Rust core (``_core.default_config()``): one source of
 
 from __future__ import annotations
 
+import collections.abc
+import dataclasses
+import os
+import sys
+import types
+import typing
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Union
 
@@ -22,6 +28,8 @@ __all__ = [
     "ResidualTestConfig",
     "DetectConfig",
     "ConfigLike",
+    "config_from_toml",
+    "config_to_toml",
 ]
 
 _DEFAULTS: dict[str, Any] = _core.default_config()
@@ -202,6 +210,125 @@ class DetectConfig:
 
 
 ConfigLike = Union[DetectConfig, CusumConfig, Mapping[str, Any], None]
+
+# What a TOML file may set: one table per sub-config of DetectConfig (its field name), with the
+# sub-config's field names as keys. TOML has no null: a parameter left out keeps its default,
+# and a default of None (derived from other parameters) is written as a comment only.
+_UNSET_NOTES = {
+    "friction": "columns of this name in the data, else no mu_tot",
+    "cusum.arl0": "from the CUSUM's share of decision.alpha",
+    "cusum.threshold": "from arl0; a threshold overrides arl0",
+    "breaks.alpha": "the break scan's share of decision.alpha",
+    "l1.alpha": "the L1 monitor's share of decision.alpha",
+    "residual_tests.kde_alpha": "the KDE test's share of decision.alpha",
+}
+
+
+def _parameter_error(message: str, parameter: str) -> InvalidParameterError:
+    error = InvalidParameterError(message)
+    error.parameter = parameter
+    return error
+
+
+def _toml_value(value: Any, hint: Any, where: str, source: str) -> Any:
+    """``value`` read from TOML checked against the field's type ``hint``; ints are taken for
+    floats (``kappa = 1``), lists for tuples."""
+    options = typing.get_args(hint) if typing.get_origin(hint) in (Union, types.UnionType) else (hint,)
+    for option in options:
+        if option is type(None):
+            continue
+        if option is bool and isinstance(value, bool):
+            return value
+        if option is int and isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if option is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if option is str and isinstance(value, str):
+            return value
+        if typing.get_origin(option) is tuple and isinstance(value, list):
+            (item,) = typing.get_args(option)[:1]
+            if item is str and all(isinstance(v, str) for v in value):
+                return tuple(value)
+            if typing.get_origin(item) is collections.abc.Mapping and all(
+                isinstance(v, dict) and all(isinstance(b, bool) for b in v.values()) for v in value
+            ):
+                return tuple(dict(v) for v in value)
+    raise _parameter_error(f"{source}: {where} = {value!r} has the wrong type (expected {hint})", where)
+
+
+def config_from_toml(path: str | os.PathLike[str], base: DetectConfig | None = None) -> DetectConfig:
+    """The :class:`DetectConfig` of a TOML file: ``base`` (the defaults) with what the file sets.
+
+    The file has one table per part of :class:`DetectConfig` (``[zone]``, ``[cusum]``,
+    ``[decision]`` ...) with that part's field names as keys; ``tightscan config --show`` prints
+    every one with its default. An unknown table or key, or a value of the wrong type, raises
+    :class:`InvalidParameterError` naming it and the file, so that a misspelt parameter is never
+    silently ignored. The values' ranges are checked by the engine when it runs.
+    """
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10 reads TOML with tomli, the same parser
+        import tomli as tomllib
+
+    source = os.fspath(path)
+    with open(source, "rb") as f:
+        try:
+            document = tomllib.load(f)
+        except tomllib.TOMLDecodeError as e:
+            raise _parameter_error(f"{source}: not valid TOML: {e}", "config") from None
+    config = base or DetectConfig()
+    parts: dict[str, Any] = {}
+    sections = {f.name: f for f in dataclasses.fields(DetectConfig)}
+    for name, table in document.items():
+        if name not in sections:
+            raise _parameter_error(
+                f"{source}: unknown table [{name}] (known: {', '.join(sections)})", name
+            )
+        if not isinstance(table, dict):
+            raise _parameter_error(f"{source}: {name} must be a table [{name}] of parameters", name)
+        part = getattr(config, name)
+        hints = typing.get_type_hints(type(part))
+        changes: dict[str, Any] = {}
+        for key, value in table.items():
+            if key not in hints:
+                raise _parameter_error(
+                    f"{source}: unknown key {name}.{key} (known in [{name}]: {', '.join(hints)})", f"{name}.{key}"
+                )
+            changes[key] = _toml_value(value, hints[key], f"{name}.{key}", source)
+        parts[name] = dataclasses.replace(part, **changes)
+    return dataclasses.replace(config, **parts)
+
+
+def config_to_toml(config: DetectConfig | None = None) -> str:
+    """``config`` (the defaults if None) as the TOML :func:`config_from_toml` reads back to the
+    same config. Parameters that are None are left out, with a comment naming them.
+
+    >>> print(config_to_toml(DetectConfig(cusum=CusumConfig(kappa=0.75, threshold=5.0))).split("[cusum]")[1].split("[")[0].strip())
+    kappa = 0.75
+    threshold = 5.0
+    # arl0: unset (from the CUSUM's share of decision.alpha)
+    """
+    import tomli_w
+
+    config = config or DetectConfig()
+    out = []
+    for section in dataclasses.fields(DetectConfig):
+        part = getattr(config, section.name)
+        values: dict[str, Any] = {}
+        for f in dataclasses.fields(part):
+            value = getattr(part, f.name)
+            if value is None:
+                continue
+            if isinstance(value, tuple):
+                value = [dict(v) if isinstance(v, Mapping) else v for v in value]
+            values[f.name] = value
+        text = tomli_w.dumps({section.name: values}) if values else f"[{section.name}]\n"
+        for f in dataclasses.fields(part):
+            if getattr(part, f.name) is None:
+                note = _UNSET_NOTES.get(f"{section.name}.{f.name}") or _UNSET_NOTES.get(section.name, "")
+                text += f"# {f.name}: unset" + (f" ({note})" if note else "") + "\n"
+        out.append(text)
+    return "\n".join(out)
 
 
 def as_dict(config: ConfigLike) -> dict[str, Any] | None:

@@ -43,6 +43,32 @@ class RegressionMonitor:
     statistic: np.ndarray | None
     boundary: np.ndarray | None
 
+    def __repr__(self) -> str:
+        # The statistic and boundary paths are long: the outcome only.
+        return (
+            f"RegressionMonitor(method={self.method!r}, alarm={self.alarm}, alarm_index={self.alarm_index}, "
+            f"max_ratio={self.max_ratio:.4g}, gamma={self.gamma}, alpha={self.alpha}, critical_value={self.critical_value:.4g}, "
+            f"training={self.training}, monitored={self.monitored})"
+        )
+
+    def _repr_html_(self) -> str:
+        """For notebooks: the outcome and the settings behind it."""
+        from ._html import key_value_table
+
+        return key_value_table(
+            f"monitor_regression ({self.method})",
+            [
+                ("alarm", self.alarm),
+                ("alarm index", self.alarm_index),
+                ("max detector / boundary", self.max_ratio),
+                ("critical value c", self.critical_value),
+                ("gamma", self.gamma),
+                ("alpha", self.alpha),
+                ("training observations m", self.training),
+                ("monitored steps", self.monitored),
+            ],
+        )
+
 
 def _path(values: list[float] | None) -> np.ndarray | None:
     return None if values is None else np.asarray(values, dtype=np.float64)

@@ -708,7 +708,7 @@ def read_rexroth(
     """
     files = rexroth_files(paths)
     channel_keys = _CHANNELS + (_REDUNDANT if keep_redundant else ())
-    bar = Progress("importing Rexroth runs", len(files.paths), progress)
+    bar = Progress("importing Rexroth runs", len(files.paths), progress, unit="runs")
     rows: list[RexrothImport] = []
     try:
         for path, name in zip(files.paths, files.names):

@@ -50,6 +50,33 @@ class SequenceMonitor:
     tightenings: pa.Table
     groups: pa.Table
 
+    def _alarmed_groups(self) -> int:
+        if "first_alarm_order" not in self.groups.column_names:
+            return 0
+        return int(self.groups.num_rows - self.groups.column("first_alarm_order").null_count)
+
+    def __repr__(self) -> str:
+        return (
+            f"SequenceMonitor(tightenings={self.tightenings.num_rows:,} rows, groups={self.groups.num_rows:,} rows, "
+            f"groups with an alarm={self._alarmed_groups():,})"
+        )
+
+    def _repr_html_(self) -> str:
+        """For notebooks: one row per (group, feature), the groups with an alarm first."""
+        from ._html import grid_table
+
+        groups = self.groups
+        if "first_alarm_order" in groups.column_names and groups.num_rows:
+            order = pc.sort_indices(pc.is_null(groups.column("first_alarm_order")))
+            groups = groups.take(order)
+        shown = 20
+        rows = [list(r.values()) for r in groups.slice(0, shown).to_pylist()]
+        title = (
+            f"monitor_sequence: {self.groups.num_rows:,} (group, feature) rows, "
+            f"{self._alarmed_groups():,} with an alarm"
+        )
+        return grid_table(title, groups.column_names, rows, more=max(groups.num_rows - shown, 0))
+
 
 def _column(table: pa.Table, name: str) -> pa.ChunkedArray:
     if name not in table.column_names:

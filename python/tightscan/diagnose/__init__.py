@@ -49,6 +49,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from .._progress import Progress
 from ..exceptions import InvalidParameterError
 from .prepare import _as_table, _prepare, F64
 from .fit import _Engine, _Fit, _folds, _one_sided_tests, _Term
@@ -83,6 +84,7 @@ def diagnose(
     reach: float = 0.3,
     collinear: float = 0.5,
     grouping_factors: Sequence[str] | str | None = "auto",
+    progress: bool | None = None,
 ) -> Diagnosis:
     """Diagnose what the declared tightening model misses, out of sample.
 
@@ -136,7 +138,60 @@ def diagnose(
     pair, in the details. These are in-sample tests of a difference between levels; the
     covariate search above asks the out-of-sample question (does the column predict the
     parameter) and may name the same column as ``<parameter>_vs_<column>``.
+
+    ``progress``: a bar of the stages on stderr (``None``: on an interactive terminal).
     """
+    # The progress bar counts the stages: preparing the samples, each round of the residual loop
+    # (max_effects + 1 at most; the rest is skipped when the loop stops early), the final
+    # level-1 checks and level 2. Closed however the diagnosis ends, so an error is not
+    # printed under a live bar.
+    bar = Progress("diagnosing", max_effects + 4, progress, unit="steps")
+    try:
+        return _diagnose(
+            data,
+            folds=folds,
+            alpha=alpha,
+            min_gain=min_gain,
+            max_effects=max_effects,
+            group_by=group_by,
+            covariates=covariates,
+            spec_columns=spec_columns,
+            rundown_deg=rundown_deg,
+            whiteness_tolerance=whiteness_tolerance,
+            min_samples=min_samples,
+            parsimony=parsimony,
+            periodic_span_deg=periodic_span_deg,
+            seed=seed,
+            reach=reach,
+            collinear=collinear,
+            grouping_factors=grouping_factors,
+            bar=bar,
+        )
+    finally:
+        bar.close()
+
+
+def _diagnose(
+    data: Any,
+    *,
+    folds: int = 5,
+    alpha: float = 0.01,
+    min_gain: float = 0.01,
+    max_effects: int = 6,
+    group_by: Sequence[str] | str | None = "auto",
+    covariates: Sequence[str] | str | None = "auto",
+    spec_columns: Sequence[str] | str | None = "auto",
+    rundown_deg: float | None = None,
+    whiteness_tolerance: float = 0.05,
+    min_samples: int = 10,
+    parsimony: float = 0.8,
+    periodic_span_deg: float | None = None,
+    seed: int = 0,
+    reach: float = 0.3,
+    collinear: float = 0.5,
+    grouping_factors: Sequence[str] | str | None = "auto",
+    bar: Progress,
+) -> Diagnosis:
     started = time.perf_counter()
     if folds < 2:
         raise InvalidParameterError("folds must be at least 2", "folds")
@@ -144,6 +199,7 @@ def diagnose(
         raise InvalidParameterError("alpha must be in (0, 1)", "alpha")
     table = _as_table(data)
     s = _prepare(table, rundown_deg, min_samples, periodic_span_deg)
+    bar.advance()
     fold_t, group_cols = _folds(table, s.rows, folds, group_by, seed)
     eng = _Engine(s, fold_t, folds)
     g = eng.g
@@ -213,6 +269,7 @@ def diagnose(
     partial: dict[str, Any] = {}
     build = 0
     for round_no in range(max_effects + 1):
+        bar.advance()
         build += 1
         periods = _model_periods(model)
         terms, pinfo = _candidates(s, eng, current, declared, build, periods, _hints(model, current, current_idx))
@@ -436,6 +493,7 @@ def diagnose(
         )
         current = fit
     final = current
+    bar.advance(max_effects - round_no)  # the rounds the loop did not need
     # parameters of the added effects from the final model
     for eff, key in zip(effects, list(model)):
         eff.parameters = model[key].parameters(final, current_idx[key])
@@ -448,6 +506,7 @@ def diagnose(
     spectrum = _spectrum_details(spec_before, spec_after, model, bool(model_periods))
     unexplained = bool(white["ar_r2"] > whiteness_tolerance or leftover_significant or spectrum["unexplained_peaks"])
 
+    bar.advance()
     # level 2
     level2, l2_details, l2_plots = _level2(table, s, final, fold_t, folds, alpha, min_gain, covariates, spec_columns, group_cols, x_scale_t)
     # level 2, grouping factors: does a categorical column shift a per-tightening parameter?
@@ -541,6 +600,7 @@ def diagnose(
         "periodogram": periodogram_info.get("_curve"),
     }
     periodogram_info.pop("_curve", None)
+    bar.advance()
     return Diagnosis(
         model=model_str,
         rmse_before=rmse_before,

@@ -37,7 +37,7 @@ _GROUP_DEFAULT = (("workpiece_id", "workpiece_location"), ("part_id",), ("id_cod
 # Input
 
 
-def _read_path(path: Path) -> pa.Table:
+def _read_path(path: Path, progress: bool | None = False) -> pa.Table:
     from ..rexroth import read_rexroth
 
     if path.is_dir():
@@ -46,7 +46,7 @@ def _read_path(path: Path) -> pa.Table:
         runs = path / "runs"
         for folder in (runs, path):
             if folder.is_dir() and any(p.suffix.lower() == ".json" and p.is_file() for p in folder.rglob("*")):
-                return read_rexroth(folder, labels=labels if labels.is_file() else None, progress=False)
+                return read_rexroth(folder, labels=labels if labels.is_file() else None, progress=progress)
         parquet = sorted(path.rglob("*.parquet"))
         if parquet:
             import pyarrow.dataset as ds
@@ -65,15 +65,16 @@ def _read_path(path: Path) -> pa.Table:
     raise DataFileError(f"no such file or directory: {path}", str(path))
 
 
-def load_table(data: Any) -> pa.Table:
+def load_table(data: Any, progress: bool | None = False) -> pa.Table:
     """The tightening table behind ``data`` (as :func:`diagnose` reads it): a table, or a path
-    to a Rexroth export directory, a Parquet file or a directory of them."""
-    return _as_table(data)
+    to a Rexroth export directory, a Parquet file or a directory of them. ``progress`` shows the
+    import of a Rexroth directory (``None``: on an interactive terminal)."""
+    return _as_table(data, progress)
 
 
-def _as_table(data: Any) -> pa.Table:
+def _as_table(data: Any, progress: bool | None = False) -> pa.Table:
     if isinstance(data, (str, os.PathLike)):
-        table = _read_path(Path(data))
+        table = _read_path(Path(data), progress)
     elif isinstance(data, pa.Table):
         table = data
     elif isinstance(data, pa.RecordBatch):

@@ -91,6 +91,42 @@ class Diagnosis:
         doc: dict[str, Any] = _jsonable(out)
         return doc
 
+    def __repr__(self) -> str:
+        # The details and the per-tightening table are long: the headline only.
+        names = [e.name for e in self.effects]
+        return (
+            f"Diagnosis(model={self.model!r}, rmse_before={self.rmse_before:.4g}, rmse_after={self.rmse_after:.4g}, "
+            f"effects={names!r}, unexplained_structure={self.unexplained_structure})"
+        )
+
+    def _repr_html_(self) -> str:
+        """For notebooks: the RMSE before and after, then each effect with its gain."""
+        from .._html import grid_table, key_value_table
+
+        head = key_value_table(
+            "tightscan diagnose",
+            [
+                ("tightenings", self.details.get("tightenings")),
+                ("model", self.model),
+                ("RMSE before [Nm]", self.rmse_before),
+                ("RMSE after [Nm]", self.rmse_after),
+                ("unexplained structure left", self.unexplained_structure),
+            ],
+        )
+        rows = []
+        for e in self.effects:
+            gain = e.evidence.get("rmse_gain")
+            rows.append(
+                (
+                    "1" if e.level == "within_tightening" else "2",
+                    e.name,
+                    e.significant,
+                    f"{e.rmse_after:.4g} {e.rmse_unit}",
+                    f"{100 * gain:.1f} %" if isinstance(gain, float) else "",
+                )
+            )
+        return head + grid_table("effects", ["level", "effect", "significant", "RMSE after", "gain"], rows)
+
     def to_json(self, path: PathLike | None = None, indent: int = 2) -> str:
         text = json.dumps(self.to_dict(), indent=indent, allow_nan=False)
         if path is not None:

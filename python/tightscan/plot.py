@@ -28,7 +28,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ._api import _frame_kind, _is_long_layout
-from .exceptions import InvalidParameterError, SchemaError
+from .exceptions import DataFileError, InvalidParameterError, SchemaError
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -394,9 +394,9 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
         if not row.get(f"{det}_alarm"):
             continue
         for key, ls in ((f"{det}_change_angle", "--"), (f"{det}_alarm_angle", ":")):
-            v = _num(row, key)
-            if v is not None:
-                ax_res.axvline(v, color=DETECTOR_COLOURS[det], ls=ls, lw=1.2, label=f"{det} {'change' if ls == '--' else 'alarm'}", gid=f"{key}")
+            mark = _num(row, key)
+            if mark is not None:
+                ax_res.axvline(mark, color=DETECTOR_COLOURS[det], ls=ls, lw=1.2, label=f"{det} {'change' if ls == '--' else 'alarm'}", gid=f"{key}")
     ax_res.set_xlabel("angle [deg]")
     ax_res.set_ylabel("residual [Nm]")
     ax_res.set_title("elastic line residuals (raw curve)", fontsize=9)
@@ -419,9 +419,9 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
     if ref is not None:
         ax_blk.axhline(ref, color="k", ls="--", lw=1, label=f"CUSUM reference {ref:.4g} Nm/deg", gid="cusum_reference")
     for key, ls, what in (("cusum_change_angle", "--", "change start"), ("cusum_alarm_angle", ":", "alarm")):
-        v = _num(row, key)
-        if v is not None and row.get("cusum_alarm"):
-            ax_blk.axvline(v, color="tab:purple", ls=ls, lw=1.2, label=f"CUSUM {what}", gid=key)
+        mark = _num(row, key)
+        if mark is not None and row.get("cusum_alarm"):
+            ax_blk.axvline(mark, color="tab:purple", ls=ls, lw=1.2, label=f"CUSUM {what}", gid=key)
     side = row.get("cusum_side")
     ax_blk.set_title(f"CUSUM: max {cmax if cmax is not None else float('nan'):.3g} sigma, h = {h if h is not None else float('nan'):.3g}" + (f", {side}" if side else ""), fontsize=9)
     ax_blk.set_xlabel("angle [deg]")
@@ -707,9 +707,19 @@ def plot_diagnosis_evidence(diagnosis: Diagnosis) -> Figure:
     return fig
 
 
+def _read_json(path: PathLike) -> dict[str, Any]:
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise DataFileError(f"cannot read {os.fspath(path)} as JSON: {e}", os.fspath(path)) from e
+    if not isinstance(doc, dict):
+        raise DataFileError(f"{os.fspath(path)} holds no JSON object", os.fspath(path))
+    return doc
+
+
 def _diagnosis_document(diagnosis: Diagnosis | Mapping[str, Any] | PathLike) -> dict[str, Any]:
     if isinstance(diagnosis, (str, os.PathLike)):
-        doc: dict[str, Any] = json.loads(Path(diagnosis).read_text())
+        doc: dict[str, Any] = _read_json(diagnosis)
         return doc
     if isinstance(diagnosis, Mapping):
         return dict(diagnosis)
@@ -788,7 +798,7 @@ def plot_detection_quality(source: Mapping[str, Any] | PathLike = "benches/resul
     ``benches/results/detection_quality.json``). Every ``name -> [recall per band]`` mapping
     under ``recall_vs_magnitude`` gets drawn, one panel per mapping (e.g. the curves every
     method saw, and ours on all curves), against the band centres of ``edges``."""
-    doc: dict[str, Any] = dict(source) if isinstance(source, Mapping) else json.loads(Path(source).read_text())
+    doc: dict[str, Any] = dict(source) if isinstance(source, Mapping) else _read_json(source)
     rvm = doc.get("recall_vs_magnitude")
     if not isinstance(rvm, Mapping):
         raise SchemaError("the benchmark record has no 'recall_vs_magnitude' mapping", "recall_vs_magnitude")

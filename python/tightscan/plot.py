@@ -183,7 +183,10 @@ def _local_slope(x: F64, y: F64, half_width: int) -> F64:
     var = sxx - sx * sx / m
     with np.errstate(invalid="ignore", divide="ignore"):
         slope = (sxy - sx * sy / m) / var
-    return np.asarray(np.where(var > 1e-12 * np.maximum(sxx, 1e-300), slope, np.nan))
+    # a window that barely advances in angle (a pause, a controller step) gives no slope worth
+    # drawing: its spread is a small fraction of the typical window's
+    typical = float(np.nanmedian(var)) if np.any(var > 0) else 0.0
+    return np.asarray(np.where(var > max(0.05 * typical, 1e-300), slope, np.nan))
 
 
 def _torque_at(curve: Mapping[str, F64], angle: float) -> float:

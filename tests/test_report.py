@@ -151,3 +151,26 @@ def test_report_renders_in_a_headless_browser(report: Path, tmp_path: Path) -> N
     images = json.loads(found.group(1).replace("&quot;", '"'))
     assert len(images) == 7
     assert all(i["complete"] and i["width"] > 100 and i["height"] > 100 for i in images), images
+
+
+def test_diagnosis_object_gives_its_figures(tmp_path: Path) -> None:
+    """A Diagnosis (not its JSON) carries the samples: residual before and after, the evidence
+    (residual against each effect's signal) and the spectrum are drawn, here and in the report."""
+    from tightscan import plot
+    from tightscan.report import write_report
+
+    curves, _ = tightscan.simulate(80, seed=5, fault_fraction=0.0, strategies=["CSDT", "HDT"], torque_lowpass_ms=5.0)
+    diagnosis = tightscan.diagnose(curves.drop_columns(["strategy", "thread"]))
+    assert [e.name for e in diagnosis.effects] == ["channel_delay"]
+    before = plot.plot_diagnosis_residual(diagnosis, "before")
+    assert any(line.get_gid() == "mean_residual" for ax in before.axes for line in ax.get_lines())
+    evidence = plot.plot_diagnosis_evidence(diagnosis)
+    assert "channel_delay" in [ax.get_title().split(" ")[0] for ax in evidence.axes]
+    assert any(line.get_gid() == "partial_residual" for ax in evidence.axes for line in ax.get_lines())
+    with pytest.raises(tightscan.InvalidParameterError, match="which"):
+        plot.plot_diagnosis_residual(diagnosis, "during")
+    html = write_report(tightscan.detect_batch(curves), tmp_path / "r.html", diagnosis=diagnosis, worst=0).read_text()
+    captions = re.findall(r'alt="diagnosis: ([^"]*)"', html)
+    assert captions == ["residual before the effects found", "residual after the effects found",
+                        "evidence: residual against each effect&#39;s signal", "residual spectrum with its peaks"]
+    assert "channel_delay" in html

@@ -65,6 +65,12 @@ def _new_figure(width: float, height: float) -> Figure:
     return Figure(figsize=(width, height), layout="constrained")
 
 
+def _legend(ax: Axes, **kwargs: Any) -> None:
+    """A legend when something is labelled (matplotlib warns on an empty one)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kwargs)
+
+
 def _as_arrow(data: Any, what: str) -> pa.Table:
     """A pyarrow Table of ``data`` (pyarrow, pandas, polars, anything with the Arrow C stream)."""
     if isinstance(data, pa.Table):
@@ -340,7 +346,10 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
     1. Each detector's statistic against its limit, on one scale (1 = the limit): CUSUM's
        largest statistic over ``cusum_threshold`` h, the L1 monitoring's largest
        sqrt(statistic) / boundary (``l1_max_ratio``; its gamma-boundary is 1 on this scale), the
-       break scan's sup-LR over its critical value; the raw values are written on the bars.
+       break scan's sup-LR over its critical value; the raw values and whether the detector
+       alarmed are written on the bars. The break scan decides on its p-value, which allows for
+       the uncertainty of the noise model on a whitened window, and also on its end test, so its
+       bar can pass 1 without an alarm, or alarm below 1.
     2. The residuals of the elastic line over the elastic window, with the tested window and
        where each detector placed its alarm and its change start.
     3. Block torque rates (the raw curve cut into blocks of ``cusum_block_angle``) against the
@@ -376,15 +385,16 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
         names = [x[0] for x in bars]
         values = [x[1] for x in bars]
         ax_lim.barh(names, values, color=[DETECTOR_COLOURS[n] for n in names], gid="statistic_bars")
-        for i, (_, v, text) in enumerate(bars):
-            ax_lim.text(v, i, f" {text}", va="center", fontsize=7)
+        for i, (name, v, text) in enumerate(bars):
+            verdict = "alarm" if row.get(f"{name}_alarm") else "no alarm"
+            ax_lim.text(v, i, f" {text}: {verdict}", va="center", fontsize=7, gid=f"bar_text:{name}")
         ax_lim.set_xscale("symlog", linthresh=1.0)
         ax_lim.set_xlim(0, max(2.0, 8.0 * max(values)))
     ax_lim.axvline(1.0, color="k", ls="--", lw=1, label="limit (threshold, boundary, critical value)", gid="limit")
     ax_lim.set_xlabel("statistic / its limit")
     kde_p = _num(row, "kde_p_value")
     ax_lim.set_title("detectors against their limits" + (f"; KDE p = {kde_p:.3g}" if kde_p is not None else ""), fontsize=9)
-    ax_lim.legend(fontsize=7, loc="lower right")
+    _legend(ax_lim, fontsize=7, loc="lower right")
 
     # 2. residuals of the elastic line
     a, r = _window_residuals(curve, row)
@@ -403,7 +413,7 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
     ax_res.set_xlabel("angle [deg]")
     ax_res.set_ylabel("residual [Nm]")
     ax_res.set_title("elastic line residuals (raw curve)", fontsize=9)
-    ax_res.legend(fontsize=7)
+    _legend(ax_res, fontsize=7)
 
     # 3. block torque rates against the CUSUM reference
     width, ref = _num(row, "cusum_block_angle"), _num(row, "cusum_reference_rate")
@@ -426,10 +436,13 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
         if mark is not None and row.get("cusum_alarm"):
             ax_blk.axvline(mark, color="tab:purple", ls=ls, lw=1.2, label=f"CUSUM {what}", gid=key)
     side = row.get("cusum_side")
-    ax_blk.set_title(f"CUSUM: max {cmax if cmax is not None else float('nan'):.3g} sigma, h = {h if h is not None else float('nan'):.3g}" + (f", {side}" if side else ""), fontsize=9)
+    if cmax is not None and h is not None:
+        ax_blk.set_title(f"CUSUM: max {cmax:.3g} sigma, h = {h:.3g}" + (f", {side}" if side else ""), fontsize=9)
+    else:
+        ax_blk.set_title("CUSUM did not run on this tightening (window too short?)", fontsize=9)
     ax_blk.set_xlabel("angle [deg]")
     ax_blk.set_ylabel("torque rate [Nm/deg]")
-    ax_blk.legend(fontsize=7)
+    _legend(ax_blk, fontsize=7)
 
     # 4. densities before and after
     split = _num(row, "kde_change_angle") or _num(row, "change_angle")
@@ -447,8 +460,7 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
     ax_kde.set_ylabel("density")
     kstat = _num(row, "kde_statistic")
     ax_kde.set_title("residual densities" + (f": KDE statistic {kstat:.3g}, p {kde_p:.3g}" if kstat is not None and kde_p is not None else " (KDE test off)"), fontsize=9)
-    if ax_kde.get_legend_handles_labels()[0]:
-        ax_kde.legend(fontsize=7)
+    _legend(ax_kde, fontsize=7)
     fig.suptitle(f"tightening {tightening_id}: detectors fired: {', '.join(_fired(row)) or 'none'}", fontsize=10)
     return fig
 
@@ -562,7 +574,7 @@ def plot_sequence(
         ax.set_ylabel(feature, fontsize=8)
         ax.tick_params(labelsize=7)
         if slot == 0 or with_cusum:
-            ax.legend(fontsize=6, loc="best")
+            _legend(ax, fontsize=6, loc="best")
         if with_cusum:
             cax = grid[r * 2 + 1, c]
             cax.plot(x, cusum_all[sel], color="tab:purple", lw=0.9, label="CUSUM (larger side)", gid="cusum")
@@ -572,7 +584,7 @@ def plot_sequence(
             cax.set_xlabel(order_col or "order in the group", fontsize=8)
             cax.set_ylabel("CUSUM [sd]", fontsize=8)
             cax.tick_params(labelsize=7)
-            cax.legend(fontsize=6)
+            _legend(cax, fontsize=6)
         else:
             ax.set_xlabel(order_col or "order in the group", fontsize=7)
     if len(groups) > len(shown):
@@ -618,7 +630,7 @@ def plot_diagnosis_residual(diagnosis: Diagnosis, which: str = "before") -> Figu
         ax.axhline(0, color="k", lw=0.5)
         ax.set_title(f"{title}: residual / noise sd ({which})", fontsize=9)
         ax.set_xlabel("position in the stretch (0 = start of the elastic window)" if sv == 0 else "position before the gap to snug")
-        ax.legend(fontsize=8)
+        _legend(ax, fontsize=8)
     ax = axes[2]
     rb, ra = p["rb"], p["ra"]
     hi = float(np.percentile(np.r_[rb, ra], 99))
@@ -627,7 +639,7 @@ def plot_diagnosis_residual(diagnosis: Diagnosis, which: str = "before") -> Figu
     if which == "after":
         ax.hist(ra, bins=bins, alpha=0.5, label=f"after (median {np.median(ra):.3g} Nm)")
     ax.set_title("per-tightening out-of-sample RMSE [Nm]", fontsize=9)
-    ax.legend(fontsize=8)
+    _legend(ax, fontsize=8)
     rmse = diagnosis.rmse_before if which == "before" else diagnosis.rmse_after
     fig.suptitle(f"residual {which}: RMSE {rmse:.4g} Nm (out of sample)")
     return fig
@@ -664,7 +676,7 @@ def plot_diagnosis_evidence(diagnosis: Diagnosis) -> Figure:
             nf = d.details.get("noise_floor_estimate")
             if nf:
                 ax.axhline(nf, color="k", ls="--", lw=1, label="noise estimate")
-                ax.legend(fontsize=7)
+                _legend(ax, fontsize=7)
         elif kind == "partial":
             mx, my, _ = p.get("partial", {}).get(e.name, (np.zeros(0), np.zeros(0), None))
             ax.plot(mx, my, "o", ms=3, label="residual before it, binned", gid="partial_residual")
@@ -674,7 +686,7 @@ def plot_diagnosis_evidence(diagnosis: Diagnosis) -> Figure:
             ax.set_xlabel("effect's contribution [Nm] (tightening's own line removed)", fontsize=7)
             ax.set_ylabel("residual [Nm]")
             ax.set_title(f"{e.name} (gain {100 * e.evidence.get('rmse_gain', float('nan')):.1f} %)", fontsize=9)
-            ax.legend(fontsize=7)
+            _legend(ax, fontsize=7)
         elif kind == "periodogram":
             per, power = p["periodogram"]
             ax.loglog(per, power)
@@ -693,7 +705,7 @@ def plot_diagnosis_evidence(diagnosis: Diagnosis) -> Figure:
                 if len(u) <= 30:
                     med = [np.median(y[x == v]) for v in u]
                     ax.plot(u, med, "r-o", ms=3, lw=2, label="median per value")
-                    ax.legend(fontsize=7)
+                    _legend(ax, fontsize=7)
                 elif "slope" in e.parameters:
                     xs = np.linspace(np.nanmin(x), np.nanmax(x), 50)
                     ax.plot(xs, np.nanmean(y) + e.parameters["slope"]["value"] * (xs - np.nanmean(x)), "r", lw=2)
@@ -775,7 +787,7 @@ def plot_spectrum(diagnosis: Diagnosis | Mapping[str, Any] | PathLike) -> Figure
             ax.set_xlim(1, 1000)
             ax.set_ylim(1, 10)
         if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7)
+            _legend(ax, fontsize=7)
     return fig
 
 
@@ -823,5 +835,5 @@ def plot_detection_quality(source: Mapping[str, Any] | PathLike = "benches/resul
         ax.set_ylabel("recall [%]")
         ax.set_ylim(-2, 102)
         ax.set_title(title.replace("_", " ") or "recall", fontsize=9)
-        ax.legend(fontsize=6)
+        _legend(ax, fontsize=6)
     return fig

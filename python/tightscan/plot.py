@@ -554,10 +554,11 @@ def plot_sequence(
         n_train = min(training, len(values))
         if n_train:
             ax.axvspan(x[0], x[n_train - 1], color="#eeeeee", lw=0, zorder=0, label=f"reference ({n_train})")
-        ax.plot(x, values, ".-", ms=3, lw=0.6, color="k", label=feature, gid="values")
+        dense = len(values) > 300  # thousands of points: dots, a line would be a black band
+        ax.plot(x, values, "." if dense else ".-", ms=1.5 if dense else 3, lw=0.6, color="k", label=feature, gid="values")
         if first_pos is not None:
             after = position >= first_pos
-            ax.plot(x[after], values[after], ".", ms=4, color="tab:red", ls="none", label="after the first alarm", gid="after_alarm")
+            ax.plot(x[after], values[after], ".", ms=1.5 if dense else 4, color="tab:red", ls="none", label="after the first alarm", gid="after_alarm")
         if med is not None and math.isfinite(med):
             ax.axhline(med, color="tab:blue", lw=1, label="reference median", gid="centre")
             if sd is not None and math.isfinite(sd) and sd > 0:

@@ -238,3 +238,14 @@ def test_real_curves_draw_without_warnings(rexroth_dir: Path) -> None:
         assert "clamp_force" not in _gids(fig) and len(fig.axes) == 2
         if status == "ok":
             plot.plot_detectors(real, results, tid)
+
+
+def test_polars_and_pandas_frames_draw_the_same(scanned: tuple[pa.Table, pa.Table]) -> None:
+    pl = pytest.importorskip("polars")
+    curves, results = scanned
+    tid = _ids(results, changed=True)[0]
+    arrow = plot.tightening_curve(curves, tid)
+    for frame in (pl.from_arrow(curves), curves.to_pandas()):
+        again = plot.tightening_curve(frame, tid)
+        np.testing.assert_array_equal(again["torque"], arrow["torque"])
+    assert "change_onset" in _gids(plot.plot_tightening(pl.from_arrow(curves), pl.from_arrow(results), tid))

@@ -96,6 +96,9 @@ def test_report_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFi
     pq.write_table(tightscan.detect_batch(curves), tmp_path / "res.parquet")
     assert main(["report", str(tmp_path / "res.parquet"), "--diagnose", str(bad), "-o", str(tmp_path / "r.html")]) == 3
     assert "diag.json" in capsys.readouterr().err
+    assert main(["report", str(tmp_path / "res.parquet"), "--by", "station", "-o", str(tmp_path / "r.html")]) == 3
+    assert "'station'" in capsys.readouterr().err
+    assert not (tmp_path / "r.html").exists()
 
 
 def _chromium() -> str:

@@ -546,7 +546,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.worst < 0:
         raise InvalidParameterError(f"--worst must be 0 or more, got {args.worst}", "worst")
     for path in (args.results, args.curves, args.diagnose, args.detection_quality):
-        if path is not None and not Path(path).exists():
+        if path is not None and "://" not in path and not Path(path).exists():
             raise DataFileError(f"{path} does not exist", path)
     out = write_report(
         args.results,

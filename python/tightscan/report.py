@@ -291,6 +291,9 @@ def render_report(
     n_changes = int(pc.sum(pc.fill_null(changed, False)).as_py() or 0)
     n_decided = n - changed.null_count
 
+    for name in ([by] if isinstance(by, str) else list(by or [])) + [c for c in (order_by, feature) if c is not None]:
+        if name not in table.column_names:
+            raise SchemaError(f"column {name!r} is not in the results (pass it through at the scan: --passthrough)", name)
     by_list = [by] if isinstance(by, str) else list(by) if by is not None else _guess_groups(table)
     order_col = order_by if order_by is not None else _guess_order(table)
     groups: list[dict[str, Any]] = []

@@ -69,7 +69,7 @@ def test_report_is_self_contained_and_escaped(report: Path) -> None:
     assert all(s.startswith("data:image/png;base64,") for s in sources)
     assert not re.search(r'(src|href)="(https?:)?//', html) and "url(" not in html and "<script" not in html
     # the summary's parts
-    for text in ("60</b>tightenings", "Changes by station", "Changes by detector", "CUSUM threshold h", "runout", "Control charts", "Detection quality"):
+    for text in ("60</b>tightenings", "Changes by station", "Changes by detector", "CUSUM threshold h", "Decision rule", "runout", "Control charts", "Detection quality"):
         assert text in html, text
     # a group name is text, not markup (autoescape)
     assert "station=&lt;b&gt;B&amp;2&lt;/b&gt;" in html and "<b>B&2</b>" not in html

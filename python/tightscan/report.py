@@ -144,6 +144,24 @@ def _levels(results: pa.Table) -> list[tuple[str, str]]:
     return out
 
 
+#: The decision settings shown as this version's defaults (the results do not record theirs).
+_DEFAULT_KEYS = ("alpha", "rule", "detectors", "calibrated", "break_alpha", "l1_alpha", "l1_gamma", "kappa", "arl0")
+
+
+def _defaults() -> list[tuple[str, str]]:
+    config = _core.default_config()
+    out = []
+    for key in _DEFAULT_KEYS:
+        if key in config:
+            value = config[key]
+            if value is None:  # set by the decision rule's share of alpha (DecisionConfig)
+                text = "from alpha and the rule"
+            else:
+                text = ", ".join(map(str, value)) if isinstance(value, (list, tuple)) else _fmt(value)
+            out.append((key, text))
+    return out
+
+
 def _metadata(path: PathLike | None) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
     """What the results file says about how it was made: its Parquet key-value metadata (without
     Arrow's and pandas' own schema keys) and, for a scan's directory, the manifests in
@@ -370,6 +388,7 @@ def render_report(
         groups=groups,
         detectors=_detector_counts(table),
         levels=_levels(table),
+        defaults=_defaults(),
         metadata=meta,
         manifests=[
             {"input": m.get("input"), "outputs": ", ".join(m.get("outputs") or []), "scan_key": str(m.get("scan_key", ""))[:16], "stats": m.get("stats", {})}

@@ -8,18 +8,26 @@ PY := $(VENV)/bin/python
 RUST_SOURCES := $(shell find crates -path '*/fuzz' -prune -o \( -name '*.rs' -o -name Cargo.toml \) -print) Cargo.toml Cargo.lock
 PY_SOURCES := $(shell find python -type f -not -name '*.so' -not -path '*/__pycache__/*') pyproject.toml
 
-.PHONY: demo test test-rust test-python bench build clean fuzz-smoke
+.PHONY: demo test test-rust test-python bench build clean fuzz-smoke browser
 
 demo: $(VENV)/.built
 	$(VENV)/bin/tightscan demo
 
-test: $(VENV)/.built
+test: $(VENV)/.built browser
 	cargo clippy --workspace --all-targets --quiet -- -D warnings
 	cargo test --workspace --exclude tightscan-python --all-targets
 	$(PY) -m pytest
 	$(PY) -m mypy python/tightscan
 	$(PY) -m mypy.stubtest tightscan._core --mypy-config-file pyproject.toml --allowlist tests/stubtest-allowlist.txt
 	$(MAKE) --no-print-directory fuzz-smoke
+
+# tests/test_report.py renders the HTML report in Debian's chromium (headless). Installed here
+# when missing and apt-get can (root, Debian); elsewhere that test is skipped and says why.
+browser:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || \
+	  { apt-get install -y --no-install-recommends chromium >/dev/null 2>&1 || \
+	    { apt-get update >/dev/null 2>&1 && apt-get install -y --no-install-recommends chromium >/dev/null 2>&1; }; } || \
+	  echo "browser SKIPPED: chromium is not installed and apt-get could not install it; tests/test_report.py's browser test will skip"
 
 # A short libFuzzer run of the engine's entry point (docs/fuzzing.md). A crash fails the tests.
 # A machine that cannot build the fuzzer (no rustup nightly, no cargo-fuzz and no network to
@@ -52,6 +60,8 @@ $(VENV)/.deps: pyproject.toml
 	$(PY) -m pip install --quiet pandas-stubs
 	# tightscan config --show writes TOML with tomli-w (a core dependency in pyproject.toml; issue 14)
 	$(PY) -m pip install --quiet "tomli-w>=1.0"
+	# tightscan report (issue 14): its Jinja2 templates; tests/test_report.py reads the browser's screenshot with Pillow
+	$(PY) -m pip install --quiet "jinja2>=3.1" "pillow>=10"
 	touch $@
 
 $(VENV)/.built: $(VENV)/.deps $(RUST_SOURCES) $(PY_SOURCES)

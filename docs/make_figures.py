@@ -1,12 +1,15 @@
-"""Figures of docs/physics.md: simulated curves of each strategy next to real ones.
+"""Figures of the README and docs/physics.md: a tightening of the demo dataset drawn by
+``tightscan.plot``, and simulated curves of each strategy next to real ones.
 
-Run from the repository root: ``.venv/bin/python docs/make_figures.py`` (needs matplotlib and
-the measured data in ``../shared/data``). Every figure is made from the engine's own output.
+Run from the repository root: ``.venv/bin/python docs/make_figures.py [NAME ...]`` (needs
+matplotlib; ``simulated_vs_real`` needs the measured data in ``../shared/data``). NAME picks
+figures (default: all). Every figure is made from the engine's own output.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -84,5 +87,24 @@ def simulated_vs_real() -> Path:
     return path
 
 
+def demo_tightening() -> Path:
+    """README figure: a tightening of the demo dataset (``tightscan demo``: seed 2026; the
+    first 200 of its tightenings are these) with the change the engine found, drawn by
+    :func:`tightscan.plot.plot_tightening`."""
+    from tightscan.plot import plot_tightening
+
+    curves, _ = tightscan.simulate(200, seed=2026)
+    results = tightscan.detect_batch(curves)
+    changed = results.filter(results.column("change_detected")).column("tightening_id").to_pylist()
+    fig = plot_tightening(curves, results, changed[0])
+    OUT.mkdir(parents=True, exist_ok=True)
+    path = OUT / "demo_tightening.png"
+    fig.savefig(path, dpi=90)
+    return path
+
+
+FIGURES = {"demo_tightening": demo_tightening, "simulated_vs_real": simulated_vs_real}
+
 if __name__ == "__main__":
-    print(simulated_vs_real())
+    for name in sys.argv[1:] or list(FIGURES):
+        print(FIGURES[name]())

@@ -78,3 +78,13 @@ __all__ = [
     "DataFileError",
     "__version__",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """``tightscan.plot`` and ``tightscan.report`` on first use: they need matplotlib (and
+    Jinja2), which ``import tightscan`` does not import."""
+    if name in ("plot", "report"):
+        import importlib
+
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""Command line: `tightscan scan | simulate | demo | import rexroth | diagnose | config`.
+"""Command line: `tightscan scan | simulate | demo | import rexroth | diagnose | config | report`.
 
 Exit codes: 0 done; 1 changes found, with `scan --fail-on-change`; 2 usage (bad arguments or
 parameter values); 3 data (a file or column that breaks the data contract, files that failed to
@@ -701,7 +701,50 @@ def build_parser() -> argparse.ArgumentParser:
     conf.add_argument("--show", action="store_true", required=True, help="print the parameters as TOML")
     conf.add_argument("--config", default=None, metavar="FILE.toml", help="show this file's parameters on top of the defaults")
     conf.set_defaults(func=cmd_config)
+
+    # issue 14: the HTML report (handler cmd_report below)
+    rep = sub.add_parser(
+        "report",
+        help="write one self-contained HTML report of scan results (opens offline)",
+        description="Summary, the tightenings with the strongest evidence of a change drawn with their "
+        "detectors (needs --curves), control charts per group, diagnose findings: one HTML file with "
+        "embedded figures. Needs matplotlib and Jinja2 (pip install 'tightscan[report]').",
+    )
+    rep.add_argument("results", metavar="RESULTS", help="results Parquet file or directory written by `tightscan scan`")
+    rep.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="where the report goes")
+    rep.add_argument("--curves", default=None, metavar="CURVES", help="the scanned tightenings (Parquet file or directory): draws the worst ones")
+    rep.add_argument("--diagnose", default=None, metavar="DIAG.json", help="a `tightscan diagnose --json` file: its findings and spectrum")
+    rep.add_argument("--detection-quality", default=None, metavar="JSON", help="benches/results/detection_quality.json: recall against magnitude")
+    rep.add_argument("--by", nargs="+", default=None, metavar="COLUMN", help="group columns of the control charts (default: a station-like pass-through column)")
+    rep.add_argument("--order-by", default=None, metavar="COLUMN", help="order of the control charts (default: timestamp, date, cycle or tightening_id)")
+    rep.add_argument("--feature", default=None, metavar="COLUMN", help="what the control charts show (default: mu_tot, else torque_rate)")
+    rep.add_argument("--worst", type=int, default=6, metavar="N", help="tightenings drawn (default %(default)s)")
+    rep.set_defaults(func=cmd_report)
     return parser
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    """`tightscan report`: tightscan.report.write_report from the command line."""
+    from .report import write_report
+
+    if args.worst < 0:
+        raise InvalidParameterError(f"--worst must be 0 or more, got {args.worst}", "worst")
+    for path in (args.results, args.curves, args.diagnose, args.detection_quality):
+        if path is not None and "://" not in path and not Path(path).exists():
+            raise DataFileError(f"{path} does not exist", path)
+    out = write_report(
+        args.results,
+        args.output,
+        curves=args.curves,
+        diagnosis=args.diagnose,
+        detection_quality=args.detection_quality,
+        by=args.by,
+        order_by=args.order_by,
+        feature=args.feature,
+        worst=args.worst,
+    )
+    print(f"report written to {out} ({out.stat().st_size / 1e6:.1f} MB)")
+    return EXIT_OK
 
 
 def _one_line(e: BaseException) -> str:

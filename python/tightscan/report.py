@@ -145,7 +145,7 @@ def _levels(results: pa.Table) -> list[tuple[str, str]]:
 
 
 #: The decision settings shown as this version's defaults (the results do not record theirs).
-_DEFAULT_KEYS = ("alpha", "rule", "detectors", "calibrated", "break_alpha", "l1_alpha", "l1_gamma", "kappa", "arl0")
+_DEFAULT_KEYS = ("alpha", "rule", "detectors", "break_alpha", "l1_alpha", "l1_gamma", "kappa", "arl0")
 
 
 def _defaults() -> list[tuple[str, str]]:

@@ -560,9 +560,10 @@ def markdown(cells: list[dict[str, Any]], meta: dict[str, Any]) -> str:
 
 
 def rewrite_block(path: Path, md: str) -> bool:
-    """Replace the text between the markers in ``path``; False if the markers are not there."""
+    """Replace the text between the markers in ``path``; False (and the file left alone) unless
+    each marker is there exactly once, begin before end."""
     text = path.read_text()
-    if BEGIN not in text or END not in text:
+    if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
         return False
     head, rest = text.split(BEGIN, 1)
     _, tail = rest.split(END, 1)

@@ -452,7 +452,9 @@ def evaluate_cell(ctx: Context, generator: str, cell: Cell, seeds: dict[str, int
         groups[s_] = ((cf["true_strategy"] == s_).to_numpy(), (ffe["true_strategy"] == s_).to_numpy())
     for k_ in FAULT_KINDS:
         groups[k_] = (np.zeros(len(cf), dtype=bool), (ffe["true_fault_kind"] == k_).to_numpy())
-    scores_all = [score(o, cf, ffe, groups) for o in ours_e]
+    # Breakdowns by strategy and kind for the decision rule and the matched rates (the
+    # configured rates of single detectors are in the overall rows only: the JSON stays small).
+    scores_all = [score(o, cf, ffe, groups if o.family == "decision" or o.point != "configured" else None) for o in ours_e]
     scores_same: list[dict[str, Any]] = []
     same_outcomes: list[Outcome] = []
     ffp = ffe.iloc[:0]
@@ -463,7 +465,7 @@ def evaluate_cell(ctx: Context, generator: str, cell: Cell, seeds: dict[str, int
         cfp = cf.iloc[pc_rows].reset_index(drop=True)
         same_outcomes = [subset(o, pc_rows, pf_rows, "peer") for o in ours] + [subset(o, pc_rows, pf_rows, "peer") for o in peers]
         pgroups = {s_: ((cfp["true_strategy"] == s_).to_numpy(), (ffp["true_strategy"] == s_).to_numpy()) for s_ in STRATEGIES}
-        scores_same = [score(o, cfp, ffp, pgroups) for o in same_outcomes]
+        scores_same = [score(o, cfp, ffp, pgroups if o.family != "ours" or o.point != "configured" else None) for o in same_outcomes]
     status_counts = {name: {str(k): int(v) for k, v in fr["status"].astype(str).str.split(":").str[0].value_counts().items()}
                      for name, fr in (("calibration", cal), ("clean", cf), ("faulty", ff))}
     timing["total_s"] = time.perf_counter() - t_start
@@ -517,6 +519,11 @@ def peer_figs(s: dict[str, Any] | None) -> str:
             f"{deg(s['onset_abs_err_median_abrupt_deg'])}")
 
 
+def not_ok(counts: dict[str, int]) -> str:
+    """Statuses other than ok, e.g. ``model_misfit 100, too_short 2`` (``0`` if none)."""
+    return ", ".join(f"{k} {v}" for k, v in counts.items() if k != "ok") or "0"
+
+
 def markdown(cells: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     """The tables the READMEs include (generated: never typed)."""
     lines = [
@@ -528,13 +535,14 @@ def markdown(cells: list[dict[str, Any]], meta: dict[str, Any]) -> str:
         f"median abrupt onset error <= {GOAL_ONSET_ABRUPT_DEG} deg; PASS/MISS on the point estimate.",
         "",
         "| generator | cell | curves per set (peers) | decision rule FA % | recall 15-45 % | recall 3-15 % | abrupt onset err [deg] | "
-        f"{BEST_PEER} (true window, matched 1 %): FA / 15-45 / 3-15 % / onset deg |",
-        "|---|---|---|---|---|---|---|---|",
+        f"{BEST_PEER} (true window, matched 1 %): FA / 15-45 / 3-15 % / onset deg | faulty (clean) curves with a status not ok |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in cells:
         g = goal_row(find(c["ours_all_curves"], "decision rule"))
         lines.append(f"| {c['generator']} | {c['cell']['name']} | {c['n_per_set']} ({c['n_peer_per_set']}) | {fmt_goal(g, 'fa')} | {fmt_goal(g, 'recall_15_45')} | "
-                     f"{fmt_goal(g, 'recall_3_15')} | {fmt_goal(g, 'onset_abrupt_deg')} | {peer_figs(find(c['same_curves'], BEST_PEER))} |")
+                     f"{fmt_goal(g, 'recall_3_15')} | {fmt_goal(g, 'onset_abrupt_deg')} | {peer_figs(find(c['same_curves'], BEST_PEER))} | "
+                     f"{not_ok(c['status_counts']['faulty'])} ({not_ok(c['status_counts']['clean'])}) |")
     band_names = [f"{100 * lo:g}-{100 * hi:g}%" for lo, hi in BANDS]
     lines += ["", "Decision rule, recall [%] by |change of mu| per strategy and by onset position in the true window (thirds):", "",
               "| generator | cell | strategy | FA % | " + " | ".join(band_names) + " | onset early | middle | late |",
@@ -557,6 +565,23 @@ def markdown(cells: list[dict[str, Any]], meta: dict[str, Any]) -> str:
             row.append(peer_figs(s))
         lines.append(f"| {c['generator']} | {c['cell']['name']} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
+
+
+def rounded(x: Any) -> Any:
+    """Floats to 5 significant digits, recursively (the JSON is committed: keep it small)."""
+    if isinstance(x, float):
+        return x if x == 0 or not math.isfinite(x) else float(f"{x:.5g}")
+    if isinstance(x, dict):
+        return {k: rounded(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [rounded(v) for v in x]
+    return x
+
+
+def dump_json(record: dict[str, Any]) -> str:
+    """Compact JSON, one line per top-level key (readable diffs, small file)."""
+    items = [f"{json.dumps(k)}:{json.dumps(rounded(v), separators=(',', ':'), default=float)}" for k, v in record.items()]
+    return "{\n" + ",\n".join(items) + "\n}\n"
 
 
 def rewrite_block(path: Path, md: str) -> bool:
@@ -584,9 +609,23 @@ def main() -> int:
     ap.add_argument("--pelt-jump", type=int, default=5, help="Pelt's grid step in samples (ruptures' default 5)")
     ap.add_argument("--json", type=Path, default=JSON_PATH)
     ap.add_argument("--md", type=Path, default=MD_PATH)
-    ap.add_argument("--plot", type=Path, default=PLOT_PATH, help="recall against magnitude (empty: no plot)")
+    ap.add_argument("--plot", type=str, default=str(PLOT_PATH), help="recall against magnitude (an empty string: no plot)")
     ap.add_argument("--write-readme", action="store_true", help="rewrite the detection_quality block of README.md and benches/README.md")
+    ap.add_argument("--from-json", type=Path, default=None, help="no run: write the markdown (and with --write-readme the README blocks) from a saved JSON")
     args = ap.parse_args()
+    if args.from_json is not None:
+        saved = json.loads(args.from_json.read_text())
+        md = markdown(saved["cells"], saved.get("markdown_meta") or {
+            "timestamp": saved["timestamp"], "n": saved["n_per_set"], "n_peer": saved["n_peer_per_set"], "wall_s": saved["runtime_s"]["total_s"],
+            "command": "python benches/detection_quality.py " + " ".join(
+                f"--{k.replace('_', '-')} {v}" for k, v in saved["args"].items() if k in ("n", "peer_n") and v is not None)
+            + (" --write-readme" if saved["args"].get("write_readme") else "")})
+        args.md.write_text(md)
+        print(f"written: {args.md}")
+        if args.write_readme:
+            for path in README_BLOCKS:
+                print(f"{path}: block {'rewritten' if rewrite_block(path, md) else 'markers not found or repeated, left alone'}")
+        return 0
     n = args.n if args.n is not None else (300 if args.quick else 1500)
     n_peer = min(n, args.peer_n if args.peer_n is not None else (100 if args.quick else 300))
     wanted = [c.strip() for c in args.cells.split(",")] if args.cells else [c.name for c in CELLS if not args.quick or c.name in QUICK_CELLS]
@@ -737,6 +776,7 @@ def main() -> int:
         "peer_settings": settings.__dict__,
         "config_ours": dict(run_config),
         "cells": [{k: v for k, v in r.items() if not k.startswith("_")} for r in results],
+        "markdown_meta": meta,
         "runtime_s": {"total_s": wall},
         "cpu_busy_before": busy_before, "cpus": os.cpu_count(), "workers": args.workers,
         "platform": platform.platform(), "python": platform.python_version(),
@@ -757,7 +797,7 @@ def main() -> int:
             "ours_all_curves": {f"{o.name} ({o.point})": recall_curve(o, ref["_ff"], edges) for o in panel_all},
             "band_edges": band_edges.tolist(), "by_cell": by_cell,
         }
-        if str(args.plot):
+        if args.plot:
             whites = [r for r in results if r["cell"]["name"] == "white"] or [ref]
             panels: list[tuple[str, list[Outcome], pd.DataFrame]] = []
             for r in whites:
@@ -766,15 +806,15 @@ def main() -> int:
                 if r["_outcomes_same"]:
                     panels.append((f"{r['generator']} / white: same {len(r['_ffp'])} faulty curves, peers given the true window",
                                    [o for o in r["_outcomes_same"] if o.point.startswith("matched") or o.family == "decision"], r["_ffp"]))
-            plot(args.plot, panels, edges)
+            plot(Path(args.plot), panels, edges)
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(record, indent=1, default=float) + "\n")
+    args.json.write_text(dump_json(record))
     md = markdown(results, meta)
     args.md.write_text(md)
-    console.print(f"written: {args.json}, {args.md}" + (f", {args.plot}" if str(args.plot) else ""))
+    console.print(f"written: {args.json}, {args.md}" + (f", {args.plot}" if args.plot else ""))
     if args.write_readme:
         for path in README_BLOCKS:
-            console.print(f"{path}: block {'rewritten' if rewrite_block(path, md) else 'markers not found, left alone'}")
+            console.print(f"{path}: block {'rewritten' if rewrite_block(path, md) else 'markers not found or repeated, left alone'}")
     return 0
 
 

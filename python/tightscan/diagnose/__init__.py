@@ -590,6 +590,7 @@ def _diagnose(
         "seg": s.seg,
         "pos": s.pos_in_window,
         "theta": s.theta,
+        "y": s.y,
         "sigma_t": sig_t,
         "ids": s.ids,
         "rb": rb,

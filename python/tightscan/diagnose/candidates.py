@@ -303,7 +303,18 @@ def _candidates(
         def p_inertia(f2: _Fit, idx: list[int]) -> dict[str, Any]:
             return {"J_kg_m2": pv(f2, idx)}
 
-        glob("inertia", [s.alpha], ["J"], p_inertia, {"acceleration_source": "speed channel (first difference)" if s.speed_source == "speed channel" else "angle/time (second derivative)"})
+        # its extension: the acceleration as the backward difference of the recorded speed, so
+        # that a lag claimed after the inertia must keep its gain when the acceleration may be
+        # estimated either way (under a hold-down program the two differ, and a lag, collinear
+        # with the acceleration there, would otherwise take up the difference)
+        glob(
+            "inertia",
+            [s.alpha],
+            ["J"],
+            p_inertia,
+            {"acceleration_source": "speed channel (first difference)" if s.speed_source == "speed channel" else "angle/time (second derivative)"},
+            extension=[s.alpha_raw] if s.alpha_raw is not None else None,
+        )
     # curvature / pressure-dependent friction: b L w^2 in the elastic zone, w = (x - x_s) / L the
     # position in the window (x_s its start, L its span in x): kappa is the relative change of
     # the slope across half the window (slope at the end / at the start = 1 + 2 kappa)

@@ -206,6 +206,11 @@ class _Samples:
     long_y: F64
     long_t: F64 | None  # time within the tightening [s] of the long stretch (None without a time channel)
     target: F64  # per tightening: target torque [Nm] from the table (NaN where it has none)
+    # the speed channel as recorded [deg/s] and its backward difference [rad/s^2] (None without
+    # a speed channel): a second estimate of speed and acceleration, to check that a speed law
+    # or an inertia does not depend on how they are estimated
+    omega_raw: F64 | None = None
+    alpha_raw: F64 | None = None
 
 
 def _window_sums(v: F64, lo: I64, hi: I64) -> F64:
@@ -346,10 +351,17 @@ def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_
     # speed [deg/s] and acceleration [rad/s^2]
     omega: F64 | None = None
     alpha: F64 | None = None
+    omega_raw: F64 | None = None
+    alpha_raw: F64 | None = None
     speed_source = "none"
     if speed is not None:
         omega, alpha = _speed_channel(speed, clock, pos, start, end)
         speed_source = "speed channel"
+        omega_raw = 6.0 * speed
+        if tt is not None:
+            dts = np.r_[0.0, np.diff(tt)]
+            good_dt = (pos > 0) & (dts > 0)
+            alpha_raw = np.where(good_dt, np.r_[0.0, np.diff(speed)] / np.where(good_dt, dts, 1.0), 0.0) * (2 * math.pi / 60.0)
         if tt is None:
             alpha = None
     elif tt is not None:
@@ -513,6 +525,8 @@ def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_
         long_y=y[long_mask],
         long_t=None if tt is None else tt[long_mask],
         target=target[rows_final],
+        omega_raw=sub(omega_raw),
+        alpha_raw=sub(alpha_raw),
     )
 
 

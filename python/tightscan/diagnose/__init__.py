@@ -340,8 +340,20 @@ def _diagnose(
             by_name = {r["name"]: r["rmse_gain"] for r in tried}
             for alt in effects[-1].evidence.get("alternatives", []):
                 alt["rmse_gain_after_it"] = by_name.get(alt["name"])
+        pair_evidence: dict[str, Any] | None = None
         if not significant_terms:
-            break
+            # Two effects that cancel where both act (a channel lag lowers the torque where it
+            # rises fast, friction rising with speed raises it there) show no gain one at a time:
+            # each alone fits the sum with the wrong shape. The global candidates with the
+            # largest pooled gains are then fitted in pairs; a pair is taken when it gains
+            # jointly and each member keeps its gain with the other in, at alpha over the
+            # singles and pairs of the round. The member that fits better alone enters now,
+            # the other has to pass the round after on its own.
+            pair_evidence = _pair_search(cands_all, tried, alone, current, lambda a, b: evaluate_with(model, [a, b])[0], alpha, m, min_gain)
+            if pair_evidence is None:
+                break
+            first = next(t for t in cands_all if t.key == pair_evidence["enters_first"])
+            significant_terms = [(pair_evidence["joint_gain"]["rmse_gain"], first, alone[first.key], tests_by_key[first.key][1])]
         if round_no == max_effects:
             leftover_significant = True
             break
@@ -464,6 +476,8 @@ def _diagnose(
         } | {k: v for k, v in term.info.items()}
         if parsimony_note:
             evidence["parsimony"] = parsimony_note
+        if pair_evidence is not None:
+            evidence["entered_as_pair"] = pair_evidence
         evidence["identification"] = identification
         if chosen is not best[1]:
             evidence["identification_note"] = f"{best[1].name} fitted best alone, but {chosen.name} encompasses it"
@@ -706,6 +720,53 @@ def _diagnose(
         per_tightening=per_t,
         plot_data=plot,
     )
+
+
+def _pair_search(
+    cands: Sequence[_Term],
+    tried: list[dict[str, Any]],
+    alone: dict[str, _Fit],
+    current: _Fit,
+    joint_fit: Any,
+    alpha: float,
+    m: int,
+    min_gain: float,
+    top: int = 4,
+) -> dict[str, Any] | None:
+    """The best pair of global candidates of different effects (among the ``top`` by pooled
+    gain) that gains jointly and of which each member keeps a gain with the other in, tested at
+    ``alpha / (m + pairs)``; None when no pair does."""
+    gain_of = {r["key"]: r["rmse_gain"] for r in tried}
+    pool = sorted((t for t in cands if not t.per_tightening), key=lambda t: -gain_of.get(t.key, -math.inf))
+    chosen: list[_Term] = []
+    for t in pool:
+        if len(chosen) < top and all(t.name != c.name for c in chosen):
+            chosen.append(t)
+    pairs = [(a, b) for i, a in enumerate(chosen) for b in chosen[i + 1 :]]
+    if not pairs:
+        return None
+    level = alpha / (m + len(pairs))
+    best: dict[str, Any] | None = None
+    for a, b in pairs:
+        joint = joint_fit(a, b)
+        together = _gain_test(current, joint, level, min_gain)
+        if not together["significant"]:
+            continue
+        keep_a = _gain_test(alone[b.key], joint, level, min_gain)
+        keep_b = _gain_test(alone[a.key], joint, level, min_gain)
+        if not (keep_a["significant"] and keep_b["significant"]):
+            continue
+        if best is None or together["rmse_gain"] > best["joint_gain"]["rmse_gain"]:
+            first, second = (a, b) if gain_of.get(a.key, 0.0) >= gain_of.get(b.key, 0.0) else (b, a)
+            best = {
+                "names": [first.name, second.name],
+                "enters_first": first.key,
+                "joint_gain": together,
+                "gain_of_each_with_the_other_in": {a.name: keep_a, b.name: keep_b},
+                "pairs_tried": len(pairs),
+                "bonferroni_alpha": level,
+            }
+    return best
 
 
 def _period_of(t: _Term) -> tuple[str, float] | None:

@@ -128,9 +128,11 @@ def diagnose(
     columns with few levels or a telling name such as ``spindle``, with 2 to 50 levels, that are
     not identifiers, outcomes, channels, counts or specification; ``None``: none). For each
     factor x parameter (torque rate, prevailing torque, tightening angle; ``mu_tot`` with clamp
-    force and the ``pitch_mm``, ``d2_mm``, ``dkm_mm`` columns): the F-test of the factor within
+    force and the thread geometry: ``pitch_mm``, ``d2_mm``, ``dkm_mm`` columns, or an ISO
+    designation in a ``thread`` column): the F-test of the factor within
     the specification cells (the cell a fixed effect, so a thread size is not read as an
-    operator effect), Kruskal-Wallis on cell-aligned values, partial eta^2 and omega^2,
+    operator effect; a numeric specification that varies almost per tightening, such as a
+    target torque drawn per tightening, enters by its quartiles), Kruskal-Wallis on cell-aligned values, partial eta^2 and omega^2,
     epsilon^2, per-level means with standard errors, and a random-intercept variance component
     (statsmodels MixedLM: ICC; "not estimated" with the reason when it fails). A factor is
     claimed, as the level-2 effect ``<parameter>_by_<factor>``, when both tests are significant
@@ -632,7 +634,7 @@ def _diagnose(
     group_details["columns_not_taken"] = factor_skips
     group_details["specification_columns"] = l2_spec
     if "mu_tot" not in l2_params:
-        group_details["mu_tot"] = "not available: needs clamp force and the pitch_mm, d2_mm, dkm_mm columns"
+        group_details["mu_tot"] = "not available: needs clamp force and the thread geometry (pitch_mm, d2_mm, dkm_mm columns, or an ISO designation in a thread column)"
     found_vs = {e.name for e in level2}
     for e in group_effects:
         twin = f"{e.parameters['parameter']}_vs_{e.parameters['factor']}"

@@ -7,9 +7,9 @@ The rows are those of the engine's table (``crates/tightscan-core/src/physics/th
 head's bearing diameter and the clearance hole), so that diagnose and ``detect_batch`` read a
 designation the same way; ``tests/test_grouping_factors.py`` checks the two agree.
 
->>> thread_geometry("M10")
-(1.5, 9.0257215, 12.815)
->>> thread_geometry("m10 x 1,25")[0], thread_geometry("M7") is None
+>>> [round(v, 4) for v in thread_geometry("M10") or ()]
+[1.5, 9.0257, 12.815]
+>>> (thread_geometry("m10 x 1,25") or (0.0,))[0], thread_geometry("M7") is None
 (1.25, True)
 """
 

@@ -570,13 +570,22 @@ def _diagnose(
                 continue
             v_main, v_raw = float(p_main[pname]["value"]), float(p_raw[pname]["value"])
             ratio = v_raw / v_main if v_main != 0 else math.nan
+            # the model keeps the estimate that predicts better out of sample (the smoothed one
+            # unless the recorded channel does: a clean speed channel, whose program steps and
+            # braking corners the smoothing rounds off)
+            use_raw = bool(fit_raw.rmse < current.rmse)
             estimator_check[key] = {
                 "parameter": pname,
                 "smoothed": p_main[pname],
                 "raw_channel": p_raw[pname],
+                "rmse_smoothed": current.rmse,
+                "rmse_raw_channel": fit_raw.rmse,
+                "model_uses": "raw channel" if use_raw else "smoothed",
                 "ratio": ratio,
                 "identifiable": bool(math.isfinite(ratio) and abs(ratio - 1.0) <= 0.15),
             }
+            if use_raw:
+                model, current, current_idx = trial, fit_raw, idx_raw
     final = current
     # parameters of the added effects from the final model
     for eff, key in zip(effects, list(model)):

@@ -148,8 +148,24 @@ def truth_floor(d: Any, truth: pa.Table) -> float:
 # cells
 
 
+#: --fixed-constants: every effect's constant (and the friction coefficients) fixed at the middle
+#: of its range instead of drawn per tightening, so that one global coefficient can describe it
+FIXED_CONSTANTS = False
+
+
+def _fixed(effect: Any) -> Any:
+    """The effect with every (low, high) range replaced by its middle."""
+    import dataclasses
+
+    changes = {f.name: 0.5 * (v[0] + v[1]) for f in dataclasses.fields(effect) if f.init and isinstance(v := getattr(effect, f.name), tuple) and len(v) == 2 and all(isinstance(x, float) for x in v)}
+    return dataclasses.replace(effect, **changes)
+
+
 def _ig_make(strategy: str, effects: tuple[Any, ...], clamp: bool = True) -> Callable[[int, int], tuple[pa.Table, pa.Table]]:
     def make(n: int, seed: int) -> tuple[pa.Table, pa.Table]:
+        if FIXED_CONSTANTS:
+            fixed = tuple(_fixed(e) for e in effects)
+            return ig.generate(ig.GeneratorConfig(n=n, seed=seed, strategy=strategy, clamp_force=clamp, effects=fixed, mu_th=0.14, mu_b=0.14))  # type: ignore[arg-type]
         return ig.generate(ig.GeneratorConfig(n=n, seed=seed, strategy=strategy, clamp_force=clamp, effects=effects))  # type: ignore[arg-type]
 
     return make
@@ -416,8 +432,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clean-seeds", type=int, default=None, help="clean sets per strategy (default --seeds)")
     ap.add_argument("--alpha", type=float, default=0.01, help="diagnose's family-wise level per round (its default 0.01)")
     ap.add_argument("--no-clamp", action="store_true", help="independent generator without the clamp-force channel (pressure friction is then expected as elastic_curvature)")
+    ap.add_argument("--fixed-constants", action="store_true", help="independent generator: each effect's constant (and mu) fixed at the middle of its range, not drawn per tightening (what one global coefficient can fit: the RMSE-after floor check)")
     ap.add_argument("-v", "--verbose", action="store_true")
     a = ap.parse_args(argv)
+    global FIXED_CONSTANTS
+    FIXED_CONSTANTS = a.fixed_constants
     n = a.n or (150 if a.quick else 300)
     strategies = tuple(a.strategies.split(","))
     magnitudes = tuple(a.magnitudes.split(","))

@@ -204,7 +204,7 @@ def _spec_labels(col: pa.ChunkedArray | pa.Array) -> list[Any]:
     varies almost per tightening (a target torque drawn per tightening, a measured stiffness)
     its quartile class -- else every tightening is a cell of its own and no factor or covariate
     can be compared within cells."""
-    values = col.to_pylist()
+    values: list[Any] = list(col.to_pylist())
     if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type) or pa.types.is_decimal(col.type)):
         return values
     x = np.array([np.nan if v is None else float(v) for v in values], dtype=np.float64)

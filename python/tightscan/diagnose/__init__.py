@@ -123,6 +123,22 @@ def diagnose(
     instead; where neither keeps a gain, the effect is a tie (``Effect.names``) and no member
     is named alone.
 
+    Two effects that cancel one at a time (a channel lag and friction rising with speed):
+    when no single candidate passes, the global candidates of distinct effects with the four
+    largest pooled gains are fitted in pairs at ``alpha / (candidates + pairs)``; a pair whose
+    members each keep their gain with the other in enters (``evidence["entered_as_pair"]``),
+    the better one first, the other having to pass alone the round after.
+
+    Parameters: each global parameter carries ``se`` (sandwich over tightenings) and
+    ``se_folds`` (delete-a-fold jackknife of the K out-of-sample fits). A channel lag's
+    ``tau_ms`` is its mean lag (fitted with the lag's second-moment term: the time constant of
+    a first-order low-pass, the delay of a pure delay, 2 zeta / omega_n of a second-order
+    filter), ``first_order_tau_ms`` beside it. A speed law and an inertia are estimated with
+    the smoothed speed channel and with the channel as recorded (backward difference for the
+    acceleration); the model keeps the better out of sample, and ``identifiable: false`` with
+    ``range_over_speed_estimates`` says when the two differ by more than 15 % (a program that
+    feeds the torque back into the speed).
+
     Grouping factors (``details["grouping_factors"]``): ``grouping_factors`` names the
     categorical columns to test (``"auto"``: string, dictionary and boolean columns, and integer
     columns with few levels or a telling name such as ``spindle``, with 2 to 50 levels, that are

@@ -220,7 +220,7 @@ fn quadratic_residuals(x: &[f64], y: &[f64], out: &mut Vec<f64>) {
     let u: Vec<f64> = x.iter().map(|v| (v - mean) / scale).collect();
     let mut basis: Vec<Vec<f64>> = Vec::with_capacity(LOCAL_TERMS);
     for k in 0..LOCAL_TERMS {
-        let mut q: Vec<f64> = u.iter().map(|v| v.powi(k as i32)).collect();
+        let mut q: Vec<f64> = u.iter().map(|&v| power(v, k)).collect();
         for b in &basis {
             let dot: f64 = q.iter().zip(b).map(|(a, c)| a * c).sum();
             q.iter_mut().zip(b).for_each(|(a, c)| *a -= dot * c);
@@ -233,6 +233,17 @@ fn quadratic_residuals(x: &[f64], y: &[f64], out: &mut Vec<f64>) {
         let dot: f64 = out.iter().zip(&q).map(|(a, c)| a * c).sum();
         out.iter_mut().zip(&q).for_each(|(a, c)| *a -= dot * c);
         basis.push(q);
+    }
+}
+
+/// `v^k` for the terms of the local quadratic (k < 3), as `powi` computes it (1, v, v * v: the
+/// same bits) without its library call per sample.
+fn power(v: f64, k: usize) -> f64 {
+    match k {
+        0 => 1.0,
+        1 => v,
+        2 => v * v,
+        _ => v.powi(k as i32),
     }
 }
 
@@ -286,7 +297,9 @@ fn model_autocovariances(phi: &[f64], v: f64, len: usize) -> Vec<f64> {
     let Some(head) = a.lu().solve(&rhs) else {
         return vec![0.0; len];
     };
-    let mut gamma: Vec<f64> = head.iter().copied().take(len).collect();
+    // Reserved whole: grown push by push, the reallocations were a fifth of the moment solve.
+    let mut gamma: Vec<f64> = Vec::with_capacity(len);
+    gamma.extend(head.iter().copied().take(len));
     while gamma.len() < len {
         let h = gamma.len();
         gamma.push(phi.iter().enumerate().map(|(j, c)| c * gamma[h - 1 - j]).sum());

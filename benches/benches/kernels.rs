@@ -173,6 +173,9 @@ fn as_f32<'a>(s: Samples<'a>) -> &'a [f32] {
     }
 }
 
+/// Sample numbers, torque and the two segments (rundown, window) of one noise-model input.
+type NoiseInput = (Vec<f64>, Vec<f64>, [std::ops::Range<usize>; 2]);
+
 fn bench_stages(c: &mut Criterion) {
     let batch = simulated_batch(DETECT_SIZES[0]);
     let samples = total_samples(&batch);
@@ -246,7 +249,7 @@ fn bench_stages(c: &mut Criterion) {
     });
     // The noise model's inputs: torque on sample number over the window and up to 1,024
     // samples before it (the detector's NOISE_HISTORY), in two segments (rundown, window).
-    let noise_inputs: Vec<(Vec<f64>, Vec<f64>, [std::ops::Range<usize>; 2])> = windows
+    let noise_inputs: Vec<NoiseInput> = windows
         .iter()
         .map(|&(i, w, _)| {
             let first = w.start.saturating_sub(1024);

@@ -467,12 +467,15 @@ fn residual_weights_direct(len: usize, max_lag: usize) -> Vec<Vec<f64>> {
 
 /// [`residual_weights`] for lags up to [`MAX_AR_ORDER`], computed once per block length and
 /// process (they cost O(L^2) and depend on nothing else).
-fn cached_residual_weights(block: usize) -> std::sync::Arc<Vec<Vec<f64>>> {
+/// Residual weights `c[h][k]` of one block length ([`residual_weights`]).
+type Weights = std::sync::Arc<Vec<Vec<f64>>>;
+
+fn cached_residual_weights(block: usize) -> Weights {
     use std::collections::HashMap;
     use std::sync::{Arc, OnceLock, RwLock};
     // One table for the process: every worker thread meets the same block lengths, and a
     // thread-local table made each of them compute every length again.
-    static WEIGHTS: OnceLock<RwLock<HashMap<usize, Arc<Vec<Vec<f64>>>>>> = OnceLock::new();
+    static WEIGHTS: OnceLock<RwLock<HashMap<usize, Weights>>> = OnceLock::new();
     let table = WEIGHTS.get_or_init(|| RwLock::new(HashMap::new()));
     if let Some(w) = table.read().ok().and_then(|t| t.get(&block).cloned()) {
         return w;
@@ -766,7 +769,7 @@ pub fn fit_student_t_groups(groups: &[&[f64]]) -> Option<StudentFit> {
     }
     // Every degree of freedom's fit of every usable group, in one lockstep pass per EM step
     // ([`student_t_scales`]).
-    let fits: Vec<Option<[Option<(f64, f64)>; STUDENT_T_DEGREES.len()]>> =
+    let fits: Vec<Option<StudentScales>> =
         groups.iter().zip(&usable).map(|(g, &use_it)| use_it.then(|| student_t_scales(g))).collect();
     let mut best: Option<(f64, f64, Vec<f64>)> = None; // (log-likelihood, nu, scales)
     'grid: for (j, &nu) in STUDENT_T_DEGREES.iter().enumerate() {
@@ -836,6 +839,10 @@ pub fn student_t_scale(residuals: &[f64], nu: f64) -> Option<(f64, f64)> {
     Some((s2.sqrt(), ll))
 }
 
+/// (scale, log-likelihood) of the Student t of each degree of freedom of [`STUDENT_T_DEGREES`],
+/// `None` where its fit failed.
+type StudentScales = [Option<(f64, f64)>; STUDENT_T_DEGREES.len()];
+
 /// [`student_t_scale`] for every degree of freedom of [`STUDENT_T_DEGREES`] at once, bit for
 /// bit the same: the EM steps of all of them advance together, one pass over the residuals per
 /// step, each degree of freedom's sum still taken in the residuals' order (so its rounding is
@@ -843,7 +850,7 @@ pub fn student_t_scale(residuals: &[f64], nu: f64) -> Option<(f64, f64)> {
 /// fits were half of a warm detect's instructions; four side by side are independent sums
 /// and vectorise. A degree of freedom that has converged keeps its scale (its lane is computed
 /// on and ignored until the other three of its chunk converge).
-fn student_t_scales(residuals: &[f64]) -> [Option<(f64, f64)>; STUDENT_T_DEGREES.len()] {
+fn student_t_scales(residuals: &[f64]) -> StudentScales {
     use statrs::function::gamma::ln_gamma;
     const K: usize = STUDENT_T_DEGREES.len();
     let nus = STUDENT_T_DEGREES;

@@ -18,8 +18,14 @@
 //! add up against `stages/detect_1_thread` (the whole detector in a one-thread rayon pool):
 //! `validate` (the NaN/inf scan of all four channels, as `detect` does it), `find_phases` (the
 //! phases and the elastic window),
-//! `block_stats` and `stop_ranges` (on the windows found), and `torque_max` (one plain pass of
-//! max over the torque, the cost of each extra whole-curve pass).
+//! `block_stats` and `stop_ranges` (on the windows found), `torque_max` (one plain pass of
+//! max over the torque, the cost of each extra whole-curve pass), `noise_model` (the AR noise
+//! model of each window from local quadratics over the window and up to 1,024 samples of
+//! rundown before it, as the detector fits it: the bias-corrected moments solved by Newton's
+//! method, the order by BIC, the jackknife of the gain) and `heavy_tail_fit` (the rundown's
+//! whitened local-quadratic noise, `block_noise`, and the Student t fitted to it over the grid
+//! of degrees of freedom, the heavy-tail check every window gets). The last two were 20 % and
+//! 40-50 % of a warm detect's instructions before issue 15's work (callgrind).
 //!
 //! The CUSUM uses kappa = 0.5 and the threshold of the default detector (two-sided ARL0 = 3,000
 //! blocks, h ~ 6.4). The recursion keeps running after the first alarm, so every increment
@@ -50,6 +56,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use tightscan_core::detectors::cusum::TwoSidedCusum;
 use tightscan_core::engine::input::{ChannelRow, Samples, TighteningTable};
+use tightscan_core::detectors::noise::{block_noise, estimate_noise_in, fit_student_t_groups, NoiseScratch};
 use tightscan_core::physics::phases::{find_phases, PhaseScratch};
 use tightscan_core::physics::torque_rate::{block_count, block_stats, stop_ranges, Blocks, ElasticWindow};
 use tightscan_core::simulate::{simulate, EffectsConfig, SimulationConfig};
@@ -166,6 +173,9 @@ fn as_f32<'a>(s: Samples<'a>) -> &'a [f32] {
     }
 }
 
+/// Sample numbers, torque and the two segments (rundown, window) of one noise-model input.
+type NoiseInput = (Vec<f64>, Vec<f64>, [std::ops::Range<usize>; 2]);
+
 fn bench_stages(c: &mut Criterion) {
     let batch = simulated_batch(DETECT_SIZES[0]);
     let samples = total_samples(&batch);
@@ -235,6 +245,39 @@ fn bench_stages(c: &mut Criterion) {
                 n += stops.len();
             }
             n
+        });
+    });
+    // The noise model's inputs: torque on sample number over the window and up to 1,024
+    // samples before it (the detector's NOISE_HISTORY), in two segments (rundown, window).
+    let noise_inputs: Vec<NoiseInput> = windows
+        .iter()
+        .map(|&(i, w, _)| {
+            let first = w.start.saturating_sub(1024);
+            let y: Vec<f64> = curves[i].1[first..w.end].iter().map(|&t| f64::from(t)).collect();
+            let t: Vec<f64> = (0..y.len()).map(|k| k as f64).collect();
+            (t, y, [0..w.start - first, w.start - first..w.end - first])
+        })
+        .collect();
+    group.bench_function("noise_model", |b| {
+        let mut scratch = NoiseScratch::default();
+        b.iter(|| {
+            noise_inputs
+                .iter()
+                .map(|(t, y, segments)| estimate_noise_in(t, y, segments, 64, &mut scratch).coefficients.len())
+                .sum::<usize>()
+        });
+    });
+    group.bench_function("heavy_tail_fit", |b| {
+        let mut noise = Vec::new();
+        b.iter(|| {
+            noise_inputs
+                .iter()
+                .filter(|(t, y, segments)| {
+                    noise.clear();
+                    block_noise(t, y, segments[0].clone(), 64, &[0.5], 0.0, &mut noise);
+                    fit_student_t_groups(&[&noise]).is_some_and(|fit| fit.lr > 5.41)
+                })
+                .count()
         });
     });
     group.bench_function("detect_1_thread", |b| {

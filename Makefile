@@ -56,6 +56,8 @@ $(VENV)/.deps: pyproject.toml
 	$(PY) -m pip install --quiet "dask[distributed]>=2024.1" "pandas>=2.0" "ray[data]>=2.9" "moto[server]>=5"
 	# tests/test_frames.py: duckdb relations in, pandas in and out (pandas also comes with statsmodels)
 	$(PY) -m pip install --quiet "duckdb>=1.1" "pandas>=2.2"
+	# tests/test_detection_quality_bench.py runs the detection-quality benchmark's peers (issue 11 item 5)
+	$(PY) -m pip install --quiet "ruptures>=1.1" "river>=0.21"
 	# mypy sees pandas' types (detect_batch's overloads: pandas in, pandas out; tests/test_typing.py)
 	$(PY) -m pip install --quiet pandas-stubs
 	# tightscan config --show writes TOML with tomli-w (a core dependency in pyproject.toml; issue 14)

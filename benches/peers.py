@@ -35,16 +35,17 @@ class PeerCurve:
     torque: np.ndarray
 
 
-def peer_windows(curves: pa.Table, truth: pa.Table, rows: Iterable[int], first_row: int) -> list[PeerCurve]:
-    """The true elastic zone of each selected tightening: angle in [elastic_start_angle,
-    final_angle] from the truth table, recorded speed >= STOP_RPM."""
+def peer_windows(curves: pa.Table, window_start: np.ndarray, window_end: np.ndarray, rows: Iterable[int], first_row: int) -> list[PeerCurve]:
+    """The true elastic zone of each selected tightening: angle in [window_start, window_end]
+    (from the generator's truth table: the built-in simulator's ``elastic_start_angle`` and
+    ``final_angle``, the independent generator's ``window_start_angle`` and
+    ``window_end_angle``), recorded speed >= STOP_RPM."""
     angle = curves.column("angle").combine_chunks()
     offsets = angle.offsets.to_numpy()
     a_all = angle.values.to_numpy(zero_copy_only=False)
     t_all = curves.column("torque").combine_chunks().values.to_numpy(zero_copy_only=False)
     s_all = curves.column("speed").combine_chunks().values.to_numpy(zero_copy_only=False)
-    lo = truth.column("elastic_start_angle").to_numpy()
-    hi = truth.column("final_angle").to_numpy()
+    lo, hi = np.asarray(window_start, dtype=np.float64), np.asarray(window_end, dtype=np.float64)
     out = []
     for i in rows:
         s, e = offsets[i], offsets[i + 1]

@@ -1,0 +1,83 @@
+"""Reduced power check of the default decision rule on curves it was not calibrated on: the
+independent generator (tests/independent_generator, plain numpy, written from the physics texts
+without the simulator's code), white torque noise of 0.01 Nm + 0.4 % of the target (the setting
+of issue 11), 2 kHz, 0.1 deg encoder, strategies CST and HDT, abrupt friction changes of either
+sign. The full figures (both generators, the noise grid, peers) come from
+``benches/detection_quality.py``; this keeps a floor under them in ``make test``.
+
+A rule that never alarms fails the recall floors; one that alarms on everything fails the
+false-alarm bounds (and one that alarms at random at a rate near alpha fails the recall floors).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+import independent_generator as ig
+import tightscan
+
+ALPHA = 0.01
+N_CLEAN = 1500  # per strategy
+N_FAULTY = 200  # per strategy and band of |change|
+NOISE = ig.NoiseConfig(sd_nm=0.01, sd_rel=0.0, sd_target_rel=0.004)
+Strategy = Literal["CST", "HDT"]
+
+# Floors: a little below what was measured at these seeds (in the comments), so that they
+# catch a regression of a few points, not the sampling noise of a fixed seed (which is none:
+# the curves are the same every run) or of a harmless change of the rule (binomial sd of a
+# recall near 0.9 over ~200 curves is about 2 points).
+RECALL_FLOOR = {
+    ("CST", "large"): 0.97,  # measured 1.000 (200 of 200 curves)
+    ("CST", "small"): 0.80,  # measured 0.850
+    ("HDT", "large"): 0.86,  # measured 0.910
+    ("HDT", "small"): 0.69,  # measured 0.745
+}
+BANDS = {"large": (0.15, 0.45), "small": (0.03, 0.15)}
+
+
+def _generate(strategy: Strategy, seed: int, n: int, magnitude: tuple[float, float] | None) -> tuple[pa.Table, pa.Table]:
+    fault = ig.FaultConfig(kind="abrupt", magnitude=magnitude, signed=True, acts_on="mix") if magnitude else ig.FaultConfig(kind=None)
+    return ig.generate(ig.GeneratorConfig(n=n, seed=seed, strategy=strategy, sample_rate_hz=2000.0, encoder_step_deg=0.1,
+                                          noise=NOISE, fault=fault))
+
+
+def _detected(curves: pa.Table) -> np.ndarray:
+    """change_detected per curve; no decision (a status other than ok) counts as no alarm."""
+    results = tightscan.detect_batch(curves, config={"alpha": ALPHA})
+    return np.array([bool(v) for v in results.column("change_detected").to_pylist()])
+
+
+@pytest.mark.parametrize("strategy", ["CST", "HDT"])
+@pytest.mark.parametrize("band", ["large", "small"])
+def test_recall_of_abrupt_changes_on_the_independent_generator(strategy: Strategy, band: str) -> None:
+    seed = {"CST": 4101, "HDT": 4102}[strategy] + (10 if band == "small" else 0)
+    curves, truth = _generate(strategy, seed, N_FAULTY, BANDS[band])
+    # A change the bolt never reached (the tool stopped first) is not in the curve.
+    reached = np.array(truth.column("onset_reached").to_pylist(), dtype=bool)
+    assert reached.sum() >= 0.8 * N_FAULTY
+    recall = float(_detected(curves)[reached].mean())
+    assert recall >= RECALL_FLOOR[(strategy, band)], f"{strategy} {band}: recall {recall:.3f} over {reached.sum()} curves"
+
+
+@pytest.fixture(scope="module")
+def clean_alarms() -> np.ndarray:
+    seeds: tuple[tuple[Strategy, int], ...] = (("CST", 4201), ("HDT", 4202))
+    return np.concatenate([_detected(_generate(s, seed, N_CLEAN, None)[0]) for s, seed in seeds])
+
+
+def test_false_alarms_of_the_default_rule_are_within_binomial_tolerance_of_alpha(clean_alarms: np.ndarray) -> None:
+    # Within 3 binomial sd of alpha over 3,000 clean curves: [0.46 %, 1.54 %], 14 to 46 alarms.
+    # A rule alarming on everything (or on a tenth of the curves) fails the upper bound; one
+    # that never alarms fails the lower. Measured 1.47 % at these seeds (CST 1.80 %, HDT
+    # 1.13 %); 1.73 % on 3,000 other clean curves (seeds 5201/5202): on this generator the rule
+    # sits near the upper edge (issue 11 item 1, size on curves it was not calibrated on, is
+    # open), so a small regression of its size fails here.
+    n = clean_alarms.size
+    sd = math.sqrt(ALPHA * (1 - ALPHA) / n)
+    rate = float(clean_alarms.mean())
+    assert ALPHA - 3 * sd <= rate <= ALPHA + 3 * sd, f"false-alarm rate {rate:.4f} over {n} clean curves"

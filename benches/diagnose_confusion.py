@@ -46,8 +46,11 @@ import pyarrow as pa
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import independent_generator as ig  # noqa: E402
 import tightscan  # noqa: E402
+from tightscan.diagnose.threads import thread_geometry  # noqa: E402
 
 STRATEGIES = ("CST", "CSDT", "HDT", "mix")
+#: (the effect's parameters, truth table) -> (parameter key, true value of that parameter), or None
+Recovery = Callable[[dict[str, Any], pa.Table], "tuple[str, float] | None"]
 
 
 @dataclass
@@ -59,12 +62,18 @@ class Cell:
     magnitude: str  # "small" | "large" | "-"
     expected: str | None  # None: clean
     make: Callable[[int, int], tuple[pa.Table, pa.Table]]
-    recovery: Callable[[dict[str, Any], pa.Table], float | None] = lambda p, t: None
+    recovery: Recovery = lambda p, t: None
     identifiable: bool = True
     outcomes: list[str] = field(default_factory=list)
     extra: int = 0
     ratios: list[float] = field(default_factory=list)
     recovered: list[float] = field(default_factory=list)
+    #: per set: (parameter, true, recovered, se, se_folds)
+    estimates: list[tuple[str, float, float, float, float]] = field(default_factory=list)
+    #: sets whose parameter the loop reported as not identifiable (``identifiable: false``)
+    flagged: int = 0
+    #: out-of-sample RMSE after / the generator's own noise sd over the model's samples
+    floor_ratios: list[float] = field(default_factory=list)
     seconds: float = 0.0
 
 
@@ -95,12 +104,71 @@ def _ratio(num: float | None, den: float) -> float | None:
     return None if num is None or not math.isfinite(den) or den == 0 else num / den
 
 
+def _se(p: dict[str, Any], key: str, which: str) -> float:
+    v = p.get(key)
+    if isinstance(v, dict) and v.get(which) is not None:
+        return float(v[which])
+    return float("nan")
+
+
+def _speed_elasticity(p: dict[str, Any], t: pa.Table) -> float:
+    """The true relative change of the friction torque above the prevailing torque per relative
+    change of speed, d ln(T - T_p) / d ln v, at the reference speed the loop reports: what both
+    of its speed laws estimate (a_eff of the log law, b_eff of the linear one; at v_ref the two
+    are the same number). With m(v) the generator's factor on mu and L = 0.16 P the lead term,
+    (T - T_p) / F = L + fr0 m(v), so the elasticity is fr0 v m'(v) / (L + fr0 m(v)); mean over
+    the tightenings (each its own coefficient and geometry)."""
+    v = float(p.get("reference_speed_rpm") or float("nan"))
+    c = _col(t, "speed_coeff")
+    pitch, d2, dkm = _col(t, "pitch_mm"), _col(t, "d2_mm"), _col(t, "dkm_mm")
+    fr0 = 0.58 * d2 * _col(t, "mu_th") + 0.5 * dkm * _col(t, "mu_b")
+    form = t.column("speed_friction_form").to_pylist()
+    if form[0] == "log":
+        v0 = _col(t, "speed_v0_rpm")
+        m, vdm = 1 + c * np.log1p(v / v0), c * v / (v + v0)
+    else:
+        vr = _col(t, "speed_v_ref_rpm")
+        m, vdm = 1 + c * v / vr, c * v / vr
+    return float(np.nanmean(fr0 * vdm / (0.16 * pitch + fr0 * m)))
+
+
+def truth_floor(d: Any, truth: pa.Table) -> float:
+    """The generator's own noise sd over the samples the loop models, as its truth table gives
+    it (sd_nm + sd_target_rel target + sd_rel |torque| per sample, the recorded torque standing
+    in for the noise-free one): the floor an RMSE can reach."""
+    pdata = d.plot_data
+    ids = list(pdata["ids"])
+    row = {v: i for i, v in enumerate(truth.column("tightening_id").to_pylist())}
+    r = np.array([row[i] for i in ids])
+    sd0, srel, stgt = (_col(truth, c)[r] for c in ("noise_sd_nm", "noise_sd_rel", "noise_sd_target_rel"))
+    target = np.nan_to_num(_col(truth, "target_torque")[r])
+    gid = pdata["gid"]
+    sd = sd0[gid] + stgt[gid] * target[gid] + srel[gid] * np.abs(np.asarray(pdata["y"]))
+    return float(np.sqrt(np.mean(sd * sd)))
+
+
 # ---------------------------------------------------------------------------------------------
 # cells
 
 
+#: --fixed-constants: every effect's constant (and the friction coefficients) fixed at the middle
+#: of its range instead of drawn per tightening, so that one global coefficient can describe it
+FIXED_CONSTANTS = False
+
+
+def _fixed(effect: Any) -> Any:
+    """The effect with every (low, high) range replaced by its middle."""
+    import dataclasses
+
+    changes = {f.name: 0.5 * (v[0] + v[1]) for f in dataclasses.fields(effect) if f.init and isinstance(v := getattr(effect, f.name), tuple) and len(v) == 2 and all(isinstance(x, float) for x in v)}
+    return dataclasses.replace(effect, **changes)
+
+
 def _ig_make(strategy: str, effects: tuple[Any, ...], clamp: bool = True) -> Callable[[int, int], tuple[pa.Table, pa.Table]]:
     def make(n: int, seed: int) -> tuple[pa.Table, pa.Table]:
+        if FIXED_CONSTANTS:
+            fixed = tuple(_fixed(e) for e in effects)
+            return ig.generate(ig.GeneratorConfig(n=n, seed=seed, strategy=strategy, clamp_force=clamp, effects=fixed, mu_th=0.14, mu_b=0.14))  # type: ignore[arg-type]
         return ig.generate(ig.GeneratorConfig(n=n, seed=seed, strategy=strategy, clamp_force=clamp, effects=effects))  # type: ignore[arg-type]
 
     return make
@@ -123,14 +191,16 @@ def _identifiable(effect: str, strategy: str) -> bool:
 def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...], clamp: bool = True) -> list[Cell]:
     cells: list[Cell] = []
 
-    def rec_tau(col: str, f: Callable[[pa.Table], np.ndarray] | None = None) -> Callable[[dict[str, Any], pa.Table], float | None]:
-        def r(p: dict[str, Any], t: pa.Table) -> float | None:
+    def rec_tau(col: str, f: Callable[[pa.Table], np.ndarray] | None = None) -> Recovery:
+        def r(p: dict[str, Any], t: pa.Table) -> tuple[str, float] | None:
             true = f(t) if f else _col(t, col)
-            return _ratio(_param(p, "tau_ms"), 1000 * float(np.nanmean(true)))
+            return "tau_ms", 1000 * float(np.nanmean(true))
 
         return r
 
     def lp2_lag(t: pa.Table) -> np.ndarray:
+        # the mean lag (first moment of the impulse response) of a unit-gain second-order
+        # low-pass: what a first-order time constant matches at low frequency
         return 2 * _col(t, "damping") / (2 * math.pi * _col(t, "natural_freq_hz"))
 
     dyn = {
@@ -144,27 +214,28 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...], 
                 eff = ig.TorqueDynamics(form=form, **mags[mag])  # type: ignore[arg-type]
                 cells.append(Cell("independent", "dynamics", form, st, mag, "channel_delay", _ig_make(st, (eff,), clamp), rec, _identifiable("dynamics", st)))
 
-    def rec_speed_log(p: dict[str, Any], t: pa.Table) -> float | None:
-        return _ratio(_param(p, "a_eff"), _friction_share(t) * float(np.nanmean(_col(t, "speed_coeff"))))
+    def rec_speed(p: dict[str, Any], t: pa.Table) -> tuple[str, float] | None:
+        key = "a_eff" if "a_eff" in p else "b_eff" if "b_eff" in p else None
+        return None if key is None else (key, _speed_elasticity(p, t))
 
     speed_mags = {"small": (0.02, 0.05), "large": (0.08, 0.15)}
     for form in ("linear", "log", "stribeck"):
         for st in strategies:
             for mag in magnitudes:
                 eff = ig.SpeedFriction(form=form, coeff=speed_mags[mag])  # type: ignore[arg-type]
-                cells.append(Cell("independent", "speed", form, st, mag, "speed_dependent_friction", _ig_make(st, (eff,), clamp), rec_speed_log if form == "log" else (lambda p, t: None), _identifiable("speed", st)))
+                cells.append(Cell("independent", "speed", form, st, mag, "speed_dependent_friction", _ig_make(st, (eff,), clamp), rec_speed if form in ("log", "linear") else (lambda p, t: None), _identifiable("speed", st)))
 
-    def rec_j(p: dict[str, Any], t: pa.Table) -> float | None:
-        return _ratio(_param(p, "J_kg_m2"), float(np.nanmean(_col(t, "inertia_kgm2"))))
+    def rec_j(p: dict[str, Any], t: pa.Table) -> tuple[str, float] | None:
+        return "J_kg_m2", float(np.nanmean(_col(t, "inertia_kgm2")))
 
     for st in strategies:
         for mag in magnitudes:
             eff_i = ig.Inertia(form="transducer", inertia_kgm2=(5e-5, 1e-4) if mag == "small" else (2e-4, 4e-4))
             cells.append(Cell("independent", "inertia", "transducer", st, mag, "inertia", _ig_make(st, (eff_i,), clamp), rec_j))
 
-    def rec_pressure(p: dict[str, Any], t: pa.Table) -> float | None:
+    def rec_pressure(p: dict[str, Any], t: pa.Table) -> tuple[str, float] | None:
         k = float(np.nanmean(_col(t, "kappa")))
-        return _ratio(_param(p, "pressure_coefficient"), _friction_share(t) * k / (1 + k))
+        return "pressure_coefficient", _friction_share(t) * k / (1 + k)
 
     pres = {"linear": {"small": {"kappa": (0.05, 0.1)}, "large": {"kappa": (0.15, 0.3)}}, "power": {"small": {"exponent": (0.03, 0.06)}, "large": {"exponent": (0.1, 0.2)}}}
     for form, mags_p in pres.items():
@@ -175,9 +246,11 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...], 
                 expected = "pressure_dependent_friction" if clamp else "elastic_curvature"
                 cells.append(Cell("independent", "pressure", form, st, mag, expected, _ig_make(st, (eff_p,), clamp), rec_pressure if form == "linear" and clamp else (lambda p, t: None)))
 
-    def rec_ripple(p: dict[str, Any], t: pa.Table) -> float | None:
+    def rec_ripple(p: dict[str, Any], t: pa.Table) -> tuple[str, float] | None:
+        # the loop reports the root mean square amplitude over the tightenings (each its own,
+        # drawn uniformly in the range): compare like with like
         amp = _col(t, "ripple_amplitude_nm") / _col(t, "target_torque")
-        return _ratio(_param(p, "amplitude"), float(np.nanmean(amp)))
+        return "amplitude", float(np.sqrt(np.nanmean(amp * amp)))
 
     for order, name in ((1, "runout"), (2, "periodic_disturbance")):
         for st in strategies:
@@ -197,13 +270,28 @@ def simulator_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...]) ->
         "pressure": ("pressure", "pressure_dependent_friction", {"small": {"pressure_friction": 0.15, "with_clamp_force": True}, "large": {"pressure_friction": 0.3, "with_clamp_force": True}}, "pressure_coefficient", {"small": 0.15, "large": 0.3}),
         "runout": ("ripple", "runout", {"small": {"runout": 0.01}, "large": {"runout": 0.02}}, "amplitude", {"small": 0.01, "large": 0.02}),
     }
+    def lead_and_friction(t: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+        """Per tightening: the lead term 0.16 P and the friction lever fr0 = 0.58 d2 mu_th +
+        0.5 Dkm mu_b, from the thread designation and the drawn friction coefficients."""
+        geo = np.array([thread_geometry(v) or (np.nan,) * 3 for v in t.column("thread").to_pylist()], dtype=float)
+        return 0.16 * geo[:, 0], 0.58 * geo[:, 1] * _col(t, "mu_th") + 0.5 * geo[:, 2] * _col(t, "mu_b")
+
     for form, (family, expected, kws, key, true) in table.items():
         for st in strategies:
             for mag in magnitudes:
-                # speed and pressure laws scale mu only: the ratio is a_eff / a, about the friction
-                # share of the simulator's threads (0.85-0.9), not 1
-                def rec(p: dict[str, Any], t: pa.Table, key: str = key, v: float = true[mag]) -> float | None:
-                    return _ratio(_param(p, key), v)
+                # the speed and pressure laws scale mu only, not the lead term: the truth of what
+                # the loop estimates is the law's elasticity of the torque above the prevailing
+                # level (speed: mu (1 + a ln(v / 30 rpm)), at the reported reference speed;
+                # pressure: mu (1 + c (F / F_t - 1)), at the end of the tightening, F_end ~ F_t)
+                def rec(p: dict[str, Any], t: pa.Table, key: str = key, v: float = true[mag], form: str = form) -> tuple[str, float] | None:
+                    if form == "speed":
+                        lead, fr0 = lead_and_friction(t)
+                        vref = float(p.get("reference_speed_rpm") or float("nan"))
+                        return key, float(np.nanmean(fr0 * v / (lead + fr0 * (1 + v * math.log(vref / 30.0)))))
+                    if form == "pressure":
+                        lead, fr0 = lead_and_friction(t)
+                        return key, float(np.nanmean(fr0 * v / (lead + fr0)))
+                    return key, v
 
                 cells.append(Cell("simulate", family, form, st, mag, expected, _sim_make(st, **kws[mag]), rec, _identifiable(family, st)))
     return cells
@@ -261,12 +349,19 @@ def run_cell(cell: Cell, n: int, seeds: list[int], verbose: bool, alpha: float =
         floor = d.details.get("noise_floor_estimate")
         if floor:
             cell.ratios.append(d.rmse_after / floor)
+        if cell.generator == "independent":
+            cell.floor_ratios.append(d.rmse_after / truth_floor(d, truth))
         if cell.expected is not None:
             for e in d.effects:
-                if e.level == "within_tightening" and e.name == cell.expected:
-                    r = cell.recovery(e.parameters, truth)
-                    if r is not None:
-                        cell.recovered.append(r)
+                if e.level == "within_tightening" and cell.expected in (getattr(e, "names", None) or [e.name]):
+                    rk = cell.recovery(e.parameters, truth)
+                    if rk is not None:
+                        key, true = rk
+                        r = _ratio(_param(e.parameters, key), true)
+                        if r is not None:
+                            cell.recovered.append(r)
+                            cell.estimates.append((key, true, float(_param(e.parameters, key) or float("nan")), _se(e.parameters, key, "se"), _se(e.parameters, key, "se_folds")))
+                            cell.flagged += int(e.parameters.get("identifiable") is False)
                     break
         if verbose:
             print(f"  {cell.generator} {cell.effect}/{cell.form} {cell.strategy} {cell.magnitude} seed {seed}: {outcome} {[('+'.join(nm)) for nm, _ in cl]} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
@@ -282,14 +377,40 @@ def _fmt(v: list[float]) -> str:
 
 
 def markdown(cells: list[Cell]) -> str:
-    head = "| generator | effect | form | strategy | magnitude | expected | sets | first | tie | wrong | none | extra | rmse/floor | recovered/true |"
-    lines = [head, "|" + "---|" * 14]
+    head = "| generator | effect | form | strategy | magnitude | expected | sets | first | tie | wrong | none | extra | rmse/floor | rmse/noise sd | recovered/true |"
+    lines = [head, "|" + "---|" * 15]
     for c in cells:
         k = len(c.outcomes)
         cnt = {o: c.outcomes.count(o) for o in ("first", "tie", "wrong", "none")}
         exp = (c.expected or "(nothing)") + ("" if c.identifiable else " n/i")
         lines.append(
-            f"| {c.generator} | {c.effect} | {c.form} | {c.strategy} | {c.magnitude} | {exp} | {k} | {cnt['first']} | {cnt['tie']} | {cnt['wrong']} | {cnt['none']} | {c.extra} | {_fmt(c.ratios)} | {_fmt(c.recovered)} |"
+            f"| {c.generator} | {c.effect} | {c.form} | {c.strategy} | {c.magnitude} | {exp} | {k} | {cnt['first']} | {cnt['tie']} | {cnt['wrong']} | {cnt['none']} | {c.extra} | {_fmt(c.ratios)} | {_fmt(c.floor_ratios)} | {_fmt(c.recovered)} |"
+        )
+    return "\n".join(lines)
+
+
+def _g(v: float) -> str:
+    return f"{v:.4g}" if math.isfinite(v) else "-"
+
+
+def recovery_markdown(cells: list[Cell]) -> str:
+    """Parameter recovery: per cell with a mapped parameter, the truth, the recovered value, their
+    ratio (median and range over the sets), the loop's sandwich standard error and the one of
+    the out-of-sample protocol (delete-a-fold jackknife), and whether every set is within 15 %."""
+    head = "| generator | effect | form | strategy | magnitude | parameter | sets | true | recovered | recovered/true (range) | se | se (folds) | |error| / se (folds) | within 15 % | reported not identifiable |"
+    lines = [head, "|" + "---|" * 15]
+    for c in cells:
+        if not c.estimates:
+            continue
+        key = c.estimates[0][0]
+        tr, rec, se, sef = (np.array([e[i] for e in c.estimates]) for i in (1, 2, 3, 4))
+        ratio = rec / tr
+        z = np.abs(rec - tr) / sef
+        ok = int(np.sum(np.abs(ratio - 1) <= 0.15))
+        tag = "" if c.identifiable else " n/i"
+        lines.append(
+            f"| {c.generator} | {c.effect} | {c.form} | {c.strategy}{tag} | {c.magnitude} | {key} | {len(c.estimates)} | {_g(float(np.median(tr)))} | {_g(float(np.median(rec)))} | "
+            f"{np.median(ratio):.3f} ({ratio.min():.3f}-{ratio.max():.3f}) | {_g(float(np.median(se)))} | {_g(float(np.median(sef)))} | {_g(float(np.median(z)))} | {ok}/{len(c.estimates)} | {c.flagged} |"
         )
     return "\n".join(lines)
 
@@ -330,8 +451,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clean-seeds", type=int, default=None, help="clean sets per strategy (default --seeds)")
     ap.add_argument("--alpha", type=float, default=0.01, help="diagnose's family-wise level per round (its default 0.01)")
     ap.add_argument("--no-clamp", action="store_true", help="independent generator without the clamp-force channel (pressure friction is then expected as elastic_curvature)")
+    ap.add_argument("--fixed-constants", action="store_true", help="independent generator: each effect's constant (and mu) fixed at the middle of its range, not drawn per tightening (what one global coefficient can fit: the RMSE-after floor check)")
     ap.add_argument("-v", "--verbose", action="store_true")
     a = ap.parse_args(argv)
+    global FIXED_CONSTANTS
+    FIXED_CONSTANTS = a.fixed_constants
     n = a.n or (150 if a.quick else 300)
     strategies = tuple(a.strategies.split(","))
     magnitudes = tuple(a.magnitudes.split(","))
@@ -358,6 +482,8 @@ def main(argv: list[str] | None = None) -> int:
     print(markdown(cells))
     print()
     print(summary(cells))
+    print("\n## Parameter recovery\n")
+    print(recovery_markdown(cells))
     return 0
 
 

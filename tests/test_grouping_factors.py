@@ -339,3 +339,44 @@ def test_degenerate_designs_do_not_warn_or_raise() -> None:
     f2 = np.array([["a", "b"][(i // 5) % 2] for i in range(60)], dtype=object)
     _, d = grouping_factor_analysis({"p": (rng.standard_normal(60), "1", "p")}, {"f": f2}, cell2, clusters=clusters)
     assert d["tests"][0]["test_unit"] == "cluster mean" and d["tests"][0]["units"] == 12
+
+
+def test_strategy_as_a_grouping_factor_and_mu_tot_from_the_thread_column() -> None:
+    """Issue 12, item 5 (open items): CST, CSDT and HDT in one table with their ``strategy``
+    column are a grouping factor like an operator, tested within the specification cells although
+    the target torque varies per tightening (its quartiles form the cells; before, every
+    tightening was a cell of its own and every test was skipped as confounded); ``mu_tot`` comes
+    from the ISO designation of the ``thread`` column when the geometry columns are absent. On a
+    clean set nothing depends on the program: no factor is claimed."""
+    cfg = ig.GeneratorConfig(n=150, seed=4, strategy="mix", clamp_force=True)
+    curves, truth = ig.generate(cfg)
+    assert "pitch_mm" not in curves.column_names and "thread" in curves.column_names
+    d = tightscan.diagnose(curves)
+    g = d.details["grouping_factors"]
+    assert "strategy" in g["factors"]
+    tested = {(t["factor"], t["parameter"]): t for t in g["tests"]}
+    for p in ("torque_rate", "prevailing_torque", "tightening_angle", "mu_tot"):
+        assert ("strategy", p) in tested, g["skipped_tests"]
+    assert "mu_tot" not in g or g["mu_tot"] is None
+    assert _claims(d) == {}
+    # mu_tot per program as the generator drew it (its mean friction, to a few %)
+    mu_true = np.array(truth.column("mu_tot").to_pylist(), dtype=float)
+    strategy = np.array(truth.column("strategy").to_pylist())
+    for level, row in tested[("strategy", "mu_tot")]["per_level"].items():
+        assert row["mean"] == pytest.approx(float(np.mean(mu_true[strategy == level])), rel=0.08)
+
+
+def test_thread_table_agrees_with_the_independent_generators() -> None:
+    """The designation table of diagnose (a mirror of the engine's) against the geometry the
+    independent generator wrote from ISO 261/724 on its own."""
+    from tightscan.diagnose.threads import thread_geometry
+
+    for name, t in ig.THREADS.items():
+        geo = thread_geometry(name)
+        assert geo is not None, name
+        pitch, d2, dkm = geo
+        assert pitch == t.pitch
+        assert d2 == pytest.approx(t.d - 0.649519 * t.pitch, rel=1e-6)
+        assert dkm == pytest.approx(0.5 * (t.dw + t.dh), rel=1e-6)
+    assert thread_geometry("M10x1.25") == pytest.approx((1.25, 10 - 0.649519 * 1.25, 12.815))
+    assert thread_geometry("bolt") is None and thread_geometry(None) is None

@@ -39,6 +39,7 @@ improvements, Bonferroni over the candidates of the round, ``alpha``) *and* prac
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -122,14 +123,32 @@ def diagnose(
     instead; where neither keeps a gain, the effect is a tie (``Effect.names``) and no member
     is named alone.
 
+    Two effects that cancel one at a time (a channel lag and friction rising with speed):
+    when no single candidate passes, the global candidates of distinct effects with the four
+    largest pooled gains are fitted in pairs at ``alpha / (candidates + pairs)``; a pair whose
+    members each keep their gain with the other in enters (``evidence["entered_as_pair"]``),
+    the better one first, the other having to pass alone the round after.
+
+    Parameters: each global parameter carries ``se`` (sandwich over tightenings) and
+    ``se_folds`` (delete-a-fold jackknife of the K out-of-sample fits). A channel lag's
+    ``tau_ms`` is its mean lag (fitted with the lag's second-moment term: the time constant of
+    a first-order low-pass, the delay of a pure delay, 2 zeta / omega_n of a second-order
+    filter), ``first_order_tau_ms`` beside it. A speed law and an inertia are estimated with
+    the smoothed speed channel and with the channel as recorded (backward difference for the
+    acceleration); the model keeps the better out of sample, and ``identifiable: false`` with
+    ``range_over_speed_estimates`` says when the two differ by more than 15 % (a program that
+    feeds the torque back into the speed).
+
     Grouping factors (``details["grouping_factors"]``): ``grouping_factors`` names the
     categorical columns to test (``"auto"``: string, dictionary and boolean columns, and integer
     columns with few levels or a telling name such as ``spindle``, with 2 to 50 levels, that are
     not identifiers, outcomes, channels, counts or specification; ``None``: none). For each
     factor x parameter (torque rate, prevailing torque, tightening angle; ``mu_tot`` with clamp
-    force and the ``pitch_mm``, ``d2_mm``, ``dkm_mm`` columns): the F-test of the factor within
+    force and the thread geometry: ``pitch_mm``, ``d2_mm``, ``dkm_mm`` columns, or an ISO
+    designation in a ``thread`` column): the F-test of the factor within
     the specification cells (the cell a fixed effect, so a thread size is not read as an
-    operator effect), Kruskal-Wallis on cell-aligned values, partial eta^2 and omega^2,
+    operator effect; a numeric specification that varies almost per tightening, such as a
+    target torque drawn per tightening, enters by its quartiles), Kruskal-Wallis on cell-aligned values, partial eta^2 and omega^2,
     epsilon^2, per-level means with standard errors, and a random-intercept variance component
     (statsmodels MixedLM: ICC; "not estimated" with the reason when it fails). A factor is
     claimed, as the level-2 effect ``<parameter>_by_<factor>``, when both tests are significant
@@ -339,8 +358,20 @@ def _diagnose(
             by_name = {r["name"]: r["rmse_gain"] for r in tried}
             for alt in effects[-1].evidence.get("alternatives", []):
                 alt["rmse_gain_after_it"] = by_name.get(alt["name"])
+        pair_evidence: dict[str, Any] | None = None
         if not significant_terms:
-            break
+            # Two effects that cancel where both act (a channel lag lowers the torque where it
+            # rises fast, friction rising with speed raises it there) show no gain one at a time:
+            # each alone fits the sum with the wrong shape. The global candidates with the
+            # largest pooled gains are then fitted in pairs; a pair is taken when it gains
+            # jointly and each member keeps its gain with the other in, at alpha over the
+            # singles and pairs of the round. The member that fits better alone enters now,
+            # the other has to pass the round after on its own.
+            pair_evidence = _pair_search(cands_all, tried, alone, current, lambda a, b: evaluate_with(model, [a, b])[0], alpha, m, min_gain)
+            if pair_evidence is None:
+                break
+            first = next(t for t in cands_all if t.key == pair_evidence["enters_first"])
+            significant_terms = [(pair_evidence["joint_gain"]["rmse_gain"], first, alone[first.key], tests_by_key[first.key][1])]
         if round_no == max_effects:
             leftover_significant = True
             break
@@ -463,6 +494,8 @@ def _diagnose(
         } | {k: v for k, v in term.info.items()}
         if parsimony_note:
             evidence["parsimony"] = parsimony_note
+        if pair_evidence is not None:
+            evidence["entered_as_pair"] = pair_evidence
         evidence["identification"] = identification
         if chosen is not best[1]:
             evidence["identification_note"] = f"{best[1].name} fitted best alone, but {chosen.name} encompasses it"
@@ -492,11 +525,113 @@ def _diagnose(
             )
         )
         current = fit
-    final = current
     bar.advance(max_effects - round_no)  # the rounds the loop did not need
+    # the form of a channel lag: a second-order filter or a pure delay fitted as a first-order
+    # low-pass gives a time constant biased low where the torque rate changes fast (under a
+    # hold-down program: 0.75-0.8 of the true mean lag, even where the data cannot tell the
+    # forms apart by their fit). With the lag's second-moment term and the free transients from
+    # the anchors in as well, its coefficient is the channel's mean lag (the first moment of its
+    # impulse response: tau of a first-order low-pass, the delay of a pure delay, 2 zeta /
+    # omega_n of a second-order filter) whatever the form: that is the reported tau_ms (the
+    # first-order value beside it). The extended form enters the model (and rmse_after) only
+    # when it passes the loop's out-of-sample gain test at alpha
+    lag_forms: dict[str, Any] = {}
+    for key, held in list(model.items()):
+        if held.name != "channel_delay" or len(held.extension) < 4:
+            continue
+        extended = _Term(
+            held.name,
+            held.description,
+            False,
+            held.labels + ["second moment of the lag", "transient from the window's start", "transient after a pause"],
+            held.columns + held.extension[1:4],
+            held.parameters,
+            dict(held.info) | {"form": "mean lag of a channel of higher order than the first (second moment and anchor transients fitted)"},
+            held.key,
+            held.tag,
+            held.extension,
+        )
+        trial = dict(model)
+        trial[key] = extended
+        fit_ext, idx_ext = evaluate_with(trial, None)
+        test = _gain_test(current, fit_ext, alpha, 0.0)
+        lag_forms[key] = {"extension_gain": test, "first_order_tau_ms": model[key].parameters(current, current_idx[key]).get("tau_ms"), "mean_lag_ms": extended.parameters(fit_ext, idx_ext[key]).get("tau_ms"), "kept": test["significant"]}
+        if test["significant"]:
+            model, current, current_idx = trial, fit_ext, idx_ext
+    # identifiability of the parameters of a speed law and of an inertia: estimated again with
+    # the speed channel as recorded and its backward difference instead of the smoothed speed
+    # and acceleration. Where a tool program feeds the measured torque back into the speed (a
+    # hold-down law), most of the acceleration left once each tightening's own line is fitted is
+    # the drive's answer to the torque noise of the samples before, faster than the sampling
+    # can resolve: the coefficient then depends on how the acceleration is estimated (inertia
+    # at 0.5 or 0.8 of its value), and no estimate from the sampled channel can be trusted to
+    # 15 %. A parameter that moves by more than that is reported as not identifiable.
+    estimator_check: dict[str, Any] = {}
+    speed_keys = [k for k, t in model.items() if t.name in ("inertia", "speed_dependent_friction")]
+    if speed_keys and s.omega_raw is not None:
+        s_raw = dataclasses.replace(s, omega=s.omega_raw, alpha=s.alpha_raw if s.alpha_raw is not None else s.alpha)
+        build += 1
+        raw_terms, _ = _candidates(s_raw, eng, current, declared, build, _model_periods(model), _hints(model, current, current_idx))
+        for key in speed_keys:
+            alt = raw_terms.get(key)
+            if alt is None or len(alt.columns) != len(model[key].columns):
+                continue
+            trial = dict(model)
+            trial[key] = alt
+            fit_raw, idx_raw = evaluate_with(trial, None)
+            p_main = model[key].parameters(current, current_idx[key])
+            p_raw = alt.parameters(fit_raw, idx_raw[key])
+            pname = next((n for n in ("J_kg_m2", "a_eff", "b_eff") if n in p_main), None)
+            if pname is None:
+                continue
+            v_main, v_raw = float(p_main[pname]["value"]), float(p_raw[pname]["value"])
+            ratio = v_raw / v_main if v_main != 0 else math.nan
+            # the model keeps the estimate that predicts better out of sample (the smoothed one
+            # unless the recorded channel does: a clean speed channel, whose program steps and
+            # braking corners the smoothing rounds off)
+            use_raw = bool(fit_raw.rmse < current.rmse)
+            estimator_check[key] = {
+                "parameter": pname,
+                "smoothed": p_main[pname],
+                "raw_channel": p_raw[pname],
+                "rmse_smoothed": current.rmse,
+                "rmse_raw_channel": fit_raw.rmse,
+                "model_uses": "raw channel" if use_raw else "smoothed",
+                "ratio": ratio,
+                "identifiable": bool(math.isfinite(ratio) and abs(ratio - 1.0) <= 0.15),
+            }
+            if use_raw:
+                model, current, current_idx = trial, fit_raw, idx_raw
+    final = current
     # parameters of the added effects from the final model
     for eff, key in zip(effects, list(model)):
         eff.parameters = model[key].parameters(final, current_idx[key])
+        if key in lag_forms:
+            lf = lag_forms[key]
+            mean_lag = lf["mean_lag_ms"]
+            if isinstance(mean_lag, dict) and math.isfinite(mean_lag.get("value", math.nan)):
+                eff.parameters["tau_ms"] = mean_lag
+            eff.parameters["first_order_tau_ms"] = lf["first_order_tau_ms"]
+            eff.parameters["form"] = (
+                "higher order than first (the extended form fits better out of sample); tau_ms is the mean lag"
+                if lf["kept"]
+                else "first order or not told apart from it; tau_ms is the mean lag of the extended form (consistent for any form), first_order_tau_ms the first-order fit"
+            )
+            eff.evidence["lag_form"] = lf
+        if key in estimator_check:
+            chk = estimator_check[key]
+            eff.evidence["estimator_check"] = chk
+            eff.parameters["identifiable"] = chk["identifiable"]
+            pv_main = eff.parameters.get(chk["parameter"])
+            if isinstance(pv_main, dict):
+                both = [float(chk["smoothed"]["value"]), float(chk["raw_channel"]["value"])]
+                pv_main["range_over_speed_estimates"] = [min(both), max(both)]
+            if not chk["identifiable"]:
+                eff.parameters["note_identifiability"] = (
+                    f"not identifiable to 15 %: {chk['parameter']} is {chk['ratio']:.2f} times as large with the speed channel as recorded "
+                    "and its backward difference as with the smoothed speed and acceleration (a program that feeds the torque back into "
+                    "the speed: the acceleration the transducer feels is faster than the sampling resolves); the effect is named, its size is not pinned"
+                )
     white = _whiteness(s, final.resid)
     # the spectral search again with the model's periodic terms taken out of the long stretch:
     # a significant peak left is a periodicity that no candidate explains
@@ -524,7 +659,7 @@ def _diagnose(
     group_details["columns_not_taken"] = factor_skips
     group_details["specification_columns"] = l2_spec
     if "mu_tot" not in l2_params:
-        group_details["mu_tot"] = "not available: needs clamp force and the pitch_mm, d2_mm, dkm_mm columns"
+        group_details["mu_tot"] = "not available: needs clamp force and the thread geometry (pitch_mm, d2_mm, dkm_mm columns, or an ISO designation in a thread column)"
     found_vs = {e.name for e in level2}
     for e in group_effects:
         twin = f"{e.parameters['parameter']}_vs_{e.parameters['factor']}"
@@ -590,6 +725,7 @@ def _diagnose(
         "seg": s.seg,
         "pos": s.pos_in_window,
         "theta": s.theta,
+        "y": s.y,
         "sigma_t": sig_t,
         "ids": s.ids,
         "rb": rb,
@@ -611,6 +747,53 @@ def _diagnose(
         per_tightening=per_t,
         plot_data=plot,
     )
+
+
+def _pair_search(
+    cands: Sequence[_Term],
+    tried: list[dict[str, Any]],
+    alone: dict[str, _Fit],
+    current: _Fit,
+    joint_fit: Any,
+    alpha: float,
+    m: int,
+    min_gain: float,
+    top: int = 4,
+) -> dict[str, Any] | None:
+    """The best pair of global candidates of different effects (among the ``top`` by pooled
+    gain) that gains jointly and of which each member keeps a gain with the other in, tested at
+    ``alpha / (m + pairs)``; None when no pair does."""
+    gain_of = {r["key"]: r["rmse_gain"] for r in tried}
+    pool = sorted((t for t in cands if not t.per_tightening), key=lambda t: -gain_of.get(t.key, -math.inf))
+    chosen: list[_Term] = []
+    for t in pool:
+        if len(chosen) < top and all(t.name != c.name for c in chosen):
+            chosen.append(t)
+    pairs = [(a, b) for i, a in enumerate(chosen) for b in chosen[i + 1 :]]
+    if not pairs:
+        return None
+    level = alpha / (m + len(pairs))
+    best: dict[str, Any] | None = None
+    for a, b in pairs:
+        joint = joint_fit(a, b)
+        together = _gain_test(current, joint, level, min_gain)
+        if not together["significant"]:
+            continue
+        keep_a = _gain_test(alone[b.key], joint, level, min_gain)
+        keep_b = _gain_test(alone[a.key], joint, level, min_gain)
+        if not (keep_a["significant"] and keep_b["significant"]):
+            continue
+        if best is None or together["rmse_gain"] > best["joint_gain"]["rmse_gain"]:
+            first, second = (a, b) if gain_of.get(a.key, 0.0) >= gain_of.get(b.key, 0.0) else (b, a)
+            best = {
+                "names": [first.name, second.name],
+                "enters_first": first.key,
+                "joint_gain": together,
+                "gain_of_each_with_the_other_in": {a.name: keep_a, b.name: keep_b},
+                "pairs_tried": len(pairs),
+                "bonferroni_alpha": level,
+            }
+    return best
 
 
 def _period_of(t: _Term) -> tuple[str, float] | None:

@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .result import EFFECT_NAMES
-from .prepare import _Groups, _Samples, B8, F64
+from .prepare import _Groups, _Samples, B8, F64, I64
 from .fit import _Engine, _Fit, _Term
 from .spectrum import _long_stretch, _periodogram, _poly_fit, _refine_period, _spans as _spans_of, _spectral_search
 
@@ -216,7 +216,7 @@ def _candidates(
         cands[key] = _Term(name, description or EFFECT_NAMES[name], False, labels, cols, params, info, key, tag, ext)
 
     def pv(fit2: _Fit, idx: list[int], scale: float = 1.0) -> dict[str, float]:
-        return {"value": float(fit2.beta[idx[0]] * scale), "se": float(fit2.se[idx[0]] * abs(scale))}
+        return {"value": float(fit2.beta[idx[0]] * scale), "se": float(fit2.se[idx[0]] * abs(scale)), "se_folds": _fold_se(fit2, idx[0]) * abs(scale)}
 
     if s.omega is not None:
         om = np.maximum(np.abs(s.omega), 6.0)  # 1 rpm floor
@@ -303,7 +303,18 @@ def _candidates(
         def p_inertia(f2: _Fit, idx: list[int]) -> dict[str, Any]:
             return {"J_kg_m2": pv(f2, idx)}
 
-        glob("inertia", [s.alpha], ["J"], p_inertia, {"acceleration_source": "speed channel (first difference)" if s.speed_source == "speed channel" else "angle/time (second derivative)"})
+        # its extension: the acceleration as the backward difference of the recorded speed, so
+        # that a lag claimed after the inertia must keep its gain when the acceleration may be
+        # estimated either way (under a hold-down program the two differ, and a lag, collinear
+        # with the acceleration there, would otherwise take up the difference)
+        glob(
+            "inertia",
+            [s.alpha],
+            ["J"],
+            p_inertia,
+            {"acceleration_source": "speed channel (first difference)" if s.speed_source == "speed channel" else "angle/time (second derivative)"},
+            extension=[s.alpha_raw] if s.alpha_raw is not None else None,
+        )
     # curvature / pressure-dependent friction: b L w^2 in the elastic zone, w = (x - x_s) / L the
     # position in the window (x_s its start, L its span in x): kappa is the relative change of
     # the slope across half the window (slope at the end / at the start = 1 + 2 kappa)
@@ -331,10 +342,11 @@ def _candidates(
         c_med = float(np.nanmedian(cprime)) if np.any(ok) else float("nan")
         out: dict[str, Any] = {
             "kappa": pv(f2, idx),
-            "slope_change_across_window": {"value": 2 * kappa, "se": 2 * float(f2.se[idx[0]]), "unit": "relative (end / start - 1)"},
+            "slope_change_across_window": {"value": 2 * kappa, "se": 2 * float(f2.se[idx[0]]), "se_folds": 2 * _fold_se(f2, idx[0]), "unit": "relative (end / start - 1)"},
             "pressure_coefficient": {
                 "value": c_med,
                 "se": abs(c_med) * float(f2.se[idx[0]]) / max(abs(kappa), 1e-300),
+                "se_folds": abs(c_med) * _fold_se(f2, idx[0]) / max(abs(kappa), 1e-300),
                 "tightenings": int(np.sum(ok)),
             },
             "law": "T - T_p = K0 F (1 + c_eff (F / F_end - 1)), F_end the clamp force at the end of the tightening",
@@ -395,7 +407,7 @@ def _candidates(
                 out: dict[str, Any] = {}
                 for lab, i in zip(step_labels, idx):
                     unit = "relative to the torque rate" if "rate" in lab else "fraction of the peak torque"
-                    out[lab] = {"value": float(f2.beta[i]), "se": float(f2.se[i]), "unit": unit}
+                    out[lab] = {"value": float(f2.beta[i]), "se": float(f2.se[i]), "se_folds": _fold_se(f2, i), "unit": unit}
                 return out
 
             glob("program_step", cols, labels, p_step)
@@ -481,7 +493,7 @@ def _candidates(
                     c1[gid] * np.sin(ph) + c2[gid] * np.cos(ph),
                     ok_,
                     amp_,
-                    _pooled_amplitude(amp_[ok_], (v1 + v2)[ok_], None if form == "multiplicative" else ref_t[ok_]),
+                    _pooled_amplitude(amp_[ok_], (v1 + v2)[ok_], None if form == "multiplicative" else ref_t[ok_], eng.fold_t[ok_]),
                     float(np.median(amp_[ok_] / np.sqrt((v1[ok_] + v2[ok_]) / 2))) if ok_.any() else float("nan"),
                 )
             wave, ok, amp, pooled, snr = eng.memo[wave_key]
@@ -490,10 +502,10 @@ def _candidates(
                 r2 = pooled["r2_weighted"]
                 r_hat = math.sqrt(max(r2, 0.0))
                 r2_se = pooled["r2_weighted_se"]
-                amplitude = {"value": r_hat, "se": r2_se / (2 * r_hat) if r_hat > 0 else float("nan"), "unit": "relative to the torque"}
+                amplitude = {"value": r_hat, "se": r2_se / (2 * r_hat) if r_hat > 0 else float("nan"), "se_folds": pooled["r_se_folds"], "unit": "relative to the torque"}
                 law = f"T (1 + r sin(2 pi {'theta' if axis == 'angle' else 't'} / period + phi_j)), phase phi_j per tightening"
             else:
-                amplitude = {"value": pooled["relative"], "se": pooled["relative_se"], "unit": "fraction of the target torque (of the peak torque where the table has no target)"}
+                amplitude = {"value": pooled["relative"], "se": pooled["relative_se"], "se_folds": pooled["relative_se_folds"], "unit": "fraction of the target torque (of the peak torque where the table has no target)"}
                 law = f"T + A_j sin(2 pi {'theta' if axis == 'angle' else 't'} / period + phi_j), amplitude A_j and phase phi_j per tightening"
 
             def p_per(
@@ -511,7 +523,7 @@ def _candidates(
                 out = {
                     f"period_{unit}": period,
                     "amplitude": amplitude,
-                    "kappa": {"value": float(f2.beta[idx[0]]), "se": float(f2.se[idx[0]])},
+                    "kappa": {"value": float(f2.beta[idx[0]]), "se": float(f2.se[idx[0]]), "se_folds": _fold_se(f2, idx[0])},
                     "amplitude_median_per_tightening": med_amp,
                     "tightenings_with_a_long_rundown": n_ok,
                     "form": form,
@@ -522,7 +534,7 @@ def _candidates(
                     "modulation found there is the one in the rest of the curve) scales its prediction into the model's samples",
                 }
                 if form == "additive":
-                    out["amplitude_nm"] = {"value": pooled["nm"], "se": pooled["nm_se"]}
+                    out["amplitude_nm"] = {"value": pooled["nm"], "se": pooled["nm_se"], "se_folds": pooled["nm_se_folds"]}
                 return out
 
             info = {f"period_{unit}": period, "axis": axis, "form": form, "median_amplitude_snr_in_rundown": snr, "pooled_amplitude_z": pooled["z"]}
@@ -551,15 +563,30 @@ def _candidates(
     return cands, pinfo
 
 
-def _pooled_amplitude(amp: F64, var: F64, ref: F64 | None) -> dict[str, float]:
+def _fold_se(fit: _Fit, i: int) -> float:
+    """Standard error of a global coefficient from the out-of-sample protocol itself: the
+    delete-a-fold jackknife over the K estimates each fitted without one fold of tightenings
+    (the same estimates that predict the held-out fold), sqrt((K - 1) / K * sum (b_k - mean)^2).
+    It needs no model of the noise and sees what the sandwich does not: a coefficient that
+    moves with which tightenings are in the fit."""
+    bf = fit.beta_folds[:, i] if fit.beta_folds.ndim == 2 and fit.beta_folds.shape[1] > i else np.zeros(0)
+    k = len(bf)
+    if k < 2 or not np.all(np.isfinite(bf)):
+        return float("nan")
+    return float(math.sqrt((k - 1) / k * float(np.sum((bf - bf.mean()) ** 2))))
+
+
+def _pooled_amplitude(amp: F64, var: F64, ref: F64 | None, folds: I64 | None = None) -> dict[str, float]:
     """Pooled amplitude evidence of a per-tightening sine and cosine pair: with a_j^2 = c1^2 + c2^2
     and v_j = var(c1) + var(c2), E[a_j^2] = A_j^2 + v_j, so mean(a_j^2 - v_j) estimates the mean
     square amplitude (its root: the amplitude); under no modulation a_j^2 / (v_j / 2) is chi2_2,
-    and z compares its mean over the tightenings with 2."""
+    and z compares its mean over the tightenings with 2. ``folds`` (the fold of each tightening):
+    the ``*_se_folds`` entries are the delete-a-fold jackknife of the pooled amplitudes, the
+    standard error of the out-of-sample protocol."""
     n = len(amp)
     nan = float("nan")
     if n == 0:
-        return {"z": nan, "nm": nan, "nm_se": nan, "relative": nan, "relative_se": nan, "r2_weighted": nan, "r2_weighted_se": nan}
+        return {"z": nan, "nm": nan, "nm_se": nan, "relative": nan, "relative_se": nan, "r2_weighted": nan, "r2_weighted_se": nan, "nm_se_folds": nan, "relative_se_folds": nan, "r_se_folds": nan}
     a2 = amp * amp
     q = a2 / np.maximum(var / 2, 1e-300)
     z = float((np.mean(q) - 2.0) / (2.0 / math.sqrt(n)))
@@ -570,12 +597,39 @@ def _pooled_amplitude(amp: F64, var: F64, ref: F64 | None) -> dict[str, float]:
         r = math.sqrt(max(m, 0.0))
         return r, (se / (2 * r) if r > 0 else nan)
 
+    def r2_weighted(x2: F64, v: F64) -> float:
+        w = 1.0 / v**2
+        return float(np.sum(w * (x2 - v)) / np.sum(w))
+
+    def jackknife(stat: Callable[[npt.NDArray[np.bool_]], float]) -> float:
+        if folds is None:
+            return nan
+        levels = np.unique(folds)
+        if len(levels) < 2:
+            return nan
+        est = np.array([stat(folds != f) for f in levels])
+        if not np.all(np.isfinite(est)):
+            return nan
+        k = len(est)
+        return float(math.sqrt((k - 1) / k * float(np.sum((est - est.mean()) ** 2))))
+
     nm, nm_se = root_mean(a2, var)
     rel, rel_se = root_mean(a2 / ref**2, var / ref**2) if ref is not None else (nan, nan)
     w = 1.0 / var**2
-    r2w = float(np.sum(w * (a2 - var)) / np.sum(w))
+    r2w = r2_weighted(a2, var)
     r2w_se = float(np.sqrt(np.sum(w**2 * (2 * var**2 + 2 * a2 * var))) / np.sum(w))
-    return {"z": z, "nm": nm, "nm_se": nm_se, "relative": rel, "relative_se": rel_se, "r2_weighted": r2w, "r2_weighted_se": r2w_se}
+    return {
+        "z": z,
+        "nm": nm,
+        "nm_se": nm_se,
+        "relative": rel,
+        "relative_se": rel_se,
+        "r2_weighted": r2w,
+        "r2_weighted_se": r2w_se,
+        "nm_se_folds": jackknife(lambda m: math.sqrt(max(float(np.mean(a2[m] - var[m])), 0.0))),
+        "relative_se_folds": jackknife(lambda m: math.sqrt(max(float(np.mean((a2[m] - var[m]) / ref[m] ** 2)), 0.0))) if ref is not None else nan,
+        "r_se_folds": jackknife(lambda m: math.sqrt(max(r2_weighted(a2[m], var[m]), 0.0))),
+    }
 
 
 def _lag_xcorr(s: _Samples, resid: F64, th: F64, el: B8, max_lag: int = 12) -> dict[str, Any]:

@@ -13,6 +13,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..exceptions import SchemaError
+from .threads import thread_geometry
 from .result import Effect
 from .prepare import _CHANNELS, _Groups, _NOT_COVARIATES, _Samples, _SPEC_DEFAULT, F64, I64
 from .fit import _Engine, _Fit, _one_sided_tests, _Term
@@ -193,6 +194,27 @@ def _bin_edges(x: F64) -> F64:
     return np.unique(np.percentile(fin, np.linspace(0, 100, 11)[1:-1]))
 
 
+#: a numeric specification column with more distinct values than this (and than a tenth of the
+#: tightenings) is continuous: its cells are its quartiles
+SPEC_MAX_LEVELS = 12
+
+
+def _spec_labels(col: pa.ChunkedArray | pa.Array) -> list[Any]:
+    """A specification column's labels for the cells: its values, or for a numeric column that
+    varies almost per tightening (a target torque drawn per tightening, a measured stiffness)
+    its quartile class -- else every tightening is a cell of its own and no factor or covariate
+    can be compared within cells."""
+    values: list[Any] = list(col.to_pylist())
+    if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type) or pa.types.is_decimal(col.type)):
+        return values
+    x = np.array([np.nan if v is None else float(v) for v in values], dtype=np.float64)
+    fin = x[np.isfinite(x)]
+    if len(np.unique(fin)) <= max(SPEC_MAX_LEVELS, len(x) // 10):
+        return values
+    edges = np.quantile(fin, [0.25, 0.5, 0.75])
+    return [None if not np.isfinite(v) else f"quartile {int(np.searchsorted(edges, v, side='right')) + 1}" for v in x]
+
+
 def _level2_inputs(table: pa.Table, s: _Samples, fit: _Fit, x_scale_t: F64, spec_columns: Sequence[str] | str | None) -> tuple[dict[str, tuple[F64, str, str]], list[str], npt.NDArray[Any]]:
     """The per-tightening parameters of level 2 (name -> values, unit, description), the
     specification columns and each tightening's specification cell."""
@@ -216,15 +238,25 @@ def _level2_inputs(table: pa.Table, s: _Samples, fit: _Fit, x_scale_t: F64, spec
         spec = [spec_columns] if isinstance(spec_columns, str) else list(spec_columns)
     idx = pa.array(s.rows)
     geometry = ("pitch_mm", "d2_mm", "dkm_mm")
-    if s.has_clamp and all(c in table.column_names for c in geometry):
+    geo: tuple[F64, F64, F64] | None = None
+    if all(c in table.column_names for c in geometry):
+        pitch, d2, dkm = (np.asarray(pc.cast(table.column(c).take(idx), pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64) for c in geometry)
+        geo = (pitch, d2, dkm)
+    elif "thread" in table.column_names:
+        # the geometry from the designation (ISO metric table), as detect_batch reads it
+        rows = [thread_geometry(v) for v in table.column("thread").take(idx).to_pylist()]
+        if any(r is not None for r in rows):
+            arr = np.array([r if r is not None else (np.nan, np.nan, np.nan) for r in rows], dtype=np.float64)
+            geo = (arr[:, 0], arr[:, 1], arr[:, 2])
+    if s.has_clamp and geo is not None:
         # with clamp force and the thread's geometry: b_j = 0.16 P + mu_tot (0.58 d2 + Dkm / 2)
         # [Nm/kN = mm], so each tightening's total friction coefficient follows from its slope
-        pitch, d2, dkm = (np.asarray(pc.cast(table.column(c).take(idx), pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64) for c in geometry)
+        pitch, d2, dkm = geo
         lever = 0.58 * d2 + 0.5 * dkm
         mu = np.where(lever > 0, (rate - 0.16 * pitch) / np.where(lever > 0, lever, 1.0), np.nan)
         params["mu_tot"] = (mu, "1", "total friction coefficient from the torque-clamp force slope and the thread geometry")
     if spec:
-        keys = list(zip(*[table.column(c).take(idx).to_pylist() for c in spec]))
+        keys = list(zip(*[_spec_labels(table.column(c).take(idx)) for c in spec]))
         cell = np.array([str(k) for k in keys], dtype=object)
     else:
         cell = np.array(["all"] * s.n_tight, dtype=object)

@@ -192,6 +192,7 @@ fn curvature(xs: &[f64], weights: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], s
 const DRIFT_KNOTS: [f64; 15] = [0.18, 0.23, 0.28, 0.33, 0.38, 0.43, 0.48, 0.53, 0.58, 0.63, 0.68, 0.73, 0.78, 0.83, 0.88];
 
 #[cfg(test)]
+#[allow(clippy::expect_used)] // a failed expect is a failed test
 mod tests {
     use super::*;
     use rand::SeedableRng;

@@ -31,17 +31,29 @@ Strategy = Literal["CST", "HDT"]
 # catch a regression of a few points, not the sampling noise of a fixed seed (which is none:
 # the curves are the same every run) or of a harmless change of the rule (binomial sd of a
 # recall near 0.9 over ~200 curves is about 2 points).
+# Measured with the union-bound rule (the calibrated one it replaced in brackets).
 RECALL_FLOOR = {
     ("CST", "large"): 0.97,  # measured 1.000 (200 of 200 curves)
-    ("CST", "small"): 0.80,  # measured 0.850
-    ("HDT", "large"): 0.86,  # measured 0.910
-    ("HDT", "small"): 0.69,  # measured 0.745
+    ("CST", "small"): 0.80,  # measured 0.840 (0.850)
+    ("HDT", "large"): 0.86,  # measured 0.900 (0.910)
+    ("HDT", "small"): 0.69,  # measured 0.725 (0.745)
+}
+# Incipient drifts (friction growing linearly from the onset to the end of the elastic zone).
+# Before the misfit guard knew the drift's shape (a line that turns at the onset, by a kink
+# and a parabola, engine/analysis/breaks.rs `curvature`) it called most drifts starting in the
+# window's first half `model_misfit`: recall about 0.6 whatever the size.
+INCIPIENT_FLOOR = {
+    ("CST", "large"): 0.93,  # measured 0.965
+    ("CST", "small"): 0.83,  # measured 0.870
+    ("HDT", "large"): 0.92,  # measured 0.955
+    ("HDT", "small"): 0.73,  # measured 0.775
 }
 BANDS = {"large": (0.15, 0.45), "small": (0.03, 0.15)}
 
 
-def _generate(strategy: Strategy, seed: int, n: int, magnitude: tuple[float, float] | None) -> tuple[pa.Table, pa.Table]:
-    fault = ig.FaultConfig(kind="abrupt", magnitude=magnitude, signed=True, acts_on="mix") if magnitude else ig.FaultConfig(kind=None)
+def _generate(strategy: Strategy, seed: int, n: int, magnitude: tuple[float, float] | None,
+              kind: Literal["abrupt", "incipient"] = "abrupt") -> tuple[pa.Table, pa.Table]:
+    fault = ig.FaultConfig(kind=kind, magnitude=magnitude, signed=True, acts_on="mix") if magnitude else ig.FaultConfig(kind=None)
     return ig.generate(ig.GeneratorConfig(n=n, seed=seed, strategy=strategy, sample_rate_hz=2000.0, encoder_step_deg=0.1,
                                           noise=NOISE, fault=fault))
 
@@ -64,6 +76,17 @@ def test_recall_of_abrupt_changes_on_the_independent_generator(strategy: Strateg
     assert recall >= RECALL_FLOOR[(strategy, band)], f"{strategy} {band}: recall {recall:.3f} over {reached.sum()} curves"
 
 
+@pytest.mark.parametrize("strategy", ["CST", "HDT"])
+@pytest.mark.parametrize("band", ["large", "small"])
+def test_recall_of_incipient_drifts_on_the_independent_generator(strategy: Strategy, band: str) -> None:
+    seed = {"CST": 4301, "HDT": 4302}[strategy] + (10 if band == "small" else 0)
+    curves, truth = _generate(strategy, seed, N_FAULTY, BANDS[band], kind="incipient")
+    reached = np.array(truth.column("onset_reached").to_pylist(), dtype=bool)
+    assert reached.sum() >= 0.8 * N_FAULTY
+    recall = float(_detected(curves)[reached].mean())
+    assert recall >= INCIPIENT_FLOOR[(strategy, band)], f"{strategy} {band}: recall {recall:.3f} over {reached.sum()} curves"
+
+
 @pytest.fixture(scope="module")
 def clean_alarms() -> np.ndarray:
     seeds: tuple[tuple[Strategy, int], ...] = (("CST", 4201), ("HDT", 4202))
@@ -73,10 +96,9 @@ def clean_alarms() -> np.ndarray:
 def test_false_alarms_of_the_default_rule_are_within_binomial_tolerance_of_alpha(clean_alarms: np.ndarray) -> None:
     # Within 3 binomial sd of alpha over 3,000 clean curves: [0.46 %, 1.54 %], 14 to 46 alarms.
     # A rule alarming on everything (or on a tenth of the curves) fails the upper bound; one
-    # that never alarms fails the lower. Measured 1.47 % at these seeds (CST 1.80 %, HDT
-    # 1.13 %); 1.73 % on 3,000 other clean curves (seeds 5201/5202): on this generator the rule
-    # sits near the upper edge (issue 11 item 1, size on curves it was not calibrated on, is
-    # open), so a small regression of its size fails here.
+    # that never alarms fails the lower. Measured 0.97 % at these seeds (CST 1.07 %, HDT
+    # 0.87 %) with the union-bound rule; 1.47 % (CST 1.80 %, HDT 1.13 %) with the rule
+    # calibrated to the built-in simulator that it replaced.
     n = clean_alarms.size
     sd = math.sqrt(ALPHA * (1 - ALPHA) / n)
     rate = float(clean_alarms.mean())

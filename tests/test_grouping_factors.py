@@ -367,7 +367,7 @@ def test_strategy_as_a_grouping_factor_and_mu_tot_from_the_thread_column() -> No
 
 
 def test_thread_table_agrees_with_the_independent_generators() -> None:
-    """The designation table of diagnose (a mirror of the engine's) against the geometry the
+    """The engine's thread table, as diagnose reads it, against the geometry the
     independent generator wrote from ISO 261/724 on its own."""
     from tightscan.diagnose.threads import thread_geometry
 

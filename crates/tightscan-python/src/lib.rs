@@ -76,6 +76,14 @@ fn default_config<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     config::detect_config_to_dict(py, &tightscan_core::DetectConfig::default())
 }
 
+/// `(pitch_mm, d2_mm, dkm_mm)` of an ISO metric thread designation ("M10", "m10 x 1,25") from
+/// the engine's thread table (the one source; `diagnose` reads designations through it), or
+/// None when the table does not hold it.
+#[pyfunction]
+fn thread_geometry(designation: &str) -> Option<(f64, f64, f64)> {
+    tightscan_core::physics::thread::parse_thread(designation).map(|t| (t.pitch_mm, t.d2_mm, t.dkm_mm))
+}
+
 /// Labelled synthetic tightenings: (tightenings, truth) as pyarrow Tables.
 #[pyfunction]
 #[pyo3(signature = (config=None))]
@@ -246,6 +254,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(result_schema, m)?)?;
     m.add_function(wrap_pyfunction!(flag_duplicate_ids, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
+    m.add_function(wrap_pyfunction!(thread_geometry, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(cusum_threshold, m)?)?;
     m.add_function(wrap_pyfunction!(cusum_arl, m)?)?;

@@ -68,6 +68,9 @@ pub(super) struct Scratch {
     /// whitened samples are of the weighted ones.
     weights: Vec<f64>,
     weighted: Vec<f64>,
+    /// The snug angle in window coordinates (negative: before the window), where the clamp
+    /// force starts: a friction drift's torque grows with the force times the drift.
+    snug_x: f64,
     /// What part of the elastic window is tested, as a status names it (the window before or
     /// after a pause of the tool, or the whole window).
     tested_part: &'static str,
@@ -719,6 +722,7 @@ impl Detector {
         let snug_index = angle.partition_point(|a| a.to_f64() < phases.snug_angle).min(phases.window.start);
         let rundown_end = snug_index.saturating_sub(phases.window.start - snug_index);
         s.window_samples(angle, torque, window, tail_end, rundown_end);
+        s.snug_x = phases.snug_angle - angle[window.start].to_f64();
         let breaks = self.break_row(angle, s);
         let residual = self.residual_row(angle, row, s);
         let l1 = self.l1_row(angle, s);

@@ -64,6 +64,7 @@ __all__ = [
     "cusum_arl",
     "cusum_threshold",
     "default_config",
+    "thread_geometry",
     "detect",
     "flag_duplicate_ids",
     "result_columns",

@@ -162,7 +162,7 @@ def _add_detect_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--threshold", type=float, default=None, help="explicit CUSUM threshold h (overrides --arl0)")
     p.add_argument("--passthrough", nargs="*", default=None, metavar="COLUMN", help="input columns to copy into the results")
-    p.add_argument("--batch-size", type=int, default=8192, help="rows per streamed batch (default %(default)s)")
+    p.add_argument("--batch-size", type=int, default=None, help="rows per streamed batch (default: about 16 MB of decoded data each)")
 
 
 def print_summary(summary: ScanSummary, by_strategy: pa.Table | None = None, file: TextIO | None = None) -> None:

@@ -413,6 +413,8 @@ _READ_BUFFER = 1 << 20
 _REMOTE_READ_BUFFER = 8 << 20
 # Batches decoded ahead of the engine by the reader thread.
 _READ_AHEAD = 2
+# Result rows per row group of a results file (~430 B each).
+RESULT_ROW_GROUP = 65_536
 
 
 def _batch_rows(plan: _Plan, metadata: pq.FileMetaData | None, long_layout: bool) -> int:
@@ -661,6 +663,8 @@ class _AtomicParquet:
         self.stream = fs.open_output_stream(self.tmp)
         self.writer = pq.ParquetWriter(self.stream, schema)
         self.pending: Future[None] | None = None
+        self.buffered: list[pa.Table] = []
+        self.buffered_rows = 0
 
     def _wait(self) -> None:
         pending, self.pending = self.pending, None
@@ -668,10 +672,21 @@ class _AtomicParquet:
             pending.result()
 
     def write(self, table: pa.Table) -> None:
+        # results gathered into row groups of RESULT_ROW_GROUP rows (~30 MB), not one per batch
+        self.buffered.append(table)
+        self.buffered_rows += table.num_rows
+        if self.buffered_rows >= RESULT_ROW_GROUP:
+            self._flush()
+
+    def _flush(self) -> None:
         self._wait()
-        self.pending = _writer_pool().submit(self.writer.write_table, table)
+        if self.buffered:
+            table = self.buffered[0] if len(self.buffered) == 1 else pa.concat_tables(self.buffered)
+            self.buffered, self.buffered_rows = [], 0
+            self.pending = _writer_pool().submit(self.writer.write_table, table, RESULT_ROW_GROUP)
 
     def commit(self) -> None:
+        self._flush()
         self._wait()
         self.writer.close()
         self.stream.close()

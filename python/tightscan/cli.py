@@ -46,7 +46,9 @@ EXIT_CHANGES = 1
 EXIT_USAGE = 2
 EXIT_DATA = 3
 
-SIMULATE_CHUNK = 10_000  # tightenings per Parquet row group (and in memory at once)
+# Tightenings per Parquet row group, and in memory at once: ~25 MB of float32 channels, so that
+# `simulate -o` stays far below 500 MB and a scan's reader holds little of a row group.
+SIMULATE_CHUNK = 1_000
 SIMULATE_STEP = 1_000  # tightenings per simulator call: what the progress bar counts
 # Switchable effects of the simulator (`--effect NAME=VALUE`), with their units; 0 is off.
 EFFECTS = {
@@ -332,8 +334,9 @@ def write_simulation(
                 part = simulate(min(step, first + count - part_first), seed=seed, first_id=part_first, **kwargs)  # type: ignore[arg-type]
                 parts.append(part)
                 bar.advance(part[0].num_rows)
-            curves = pa.concat_tables([c for c, _ in parts])
-            truth = pa.concat_tables([t for _, t in parts])
+            curves = parts[0][0] if len(parts) == 1 else pa.concat_tables([c for c, _ in parts])
+            truth = parts[0][1] if len(parts) == 1 else pa.concat_tables([t for _, t in parts])
+            del parts  # the chunk's only copy is `curves`: freed once written
             if writer is None:
                 writer = pq.ParquetWriter(output, curves.schema)
                 if truth_output:

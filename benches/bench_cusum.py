@@ -1,19 +1,19 @@
 #!/usr/bin/env python3
-"""Benchmark of tightscan's CUSUM detection against numpy and against plain Parquet reading.
+"""Benchmark of tightscan's detection (default rule) against numpy, ruptures and plain Parquet reading.
 
 One run, one data set (``tightscan.simulate(N, seed=SEED)``), three comparisons:
 
 (a) ``tightscan.detect_batch`` (default config: elastic window, block torque rates, CUSUM) on
     the in-memory pyarrow table: samples per second, best of ``--repeat`` runs after a warm-up.
-(b) The same algorithm written in vectorised numpy, one Python iteration per tightening with
-    numpy inside (elastic window, 5 % angle trim, equal-angle blocks with least-squares sums by
-    ``np.bincount``, CSDT stop exclusion, pooled training reference, pooled within-block noise
-    scale, dispersion pre-test, two-sided CUSUM by ``cumsum`` + ``minimum.accumulate``). Its
-    alarms are compared with Rust's, tightening by tightening.
+(b) The default rule (break scan + CUSUM, ``any``) in vectorised numpy, one Python iteration
+    per tightening with numpy inside, on the engine's own tested window, whitening and
+    thresholds (what it does and does not reproduce: :func:`default_rule_one`). Its decisions
+    are compared with Rust's, tightening by tightening.
 (c) The ratio of (a) to (b).
 (d) ``tightscan.scan_parquet`` of a Parquet file of the same tightenings against reading that
-    file with pyarrow (``pq.read_table``, and iterating ``pyarrow.dataset`` batches as the scan
-    does), for a snappy (pyarrow's default) and an uncompressed file.
+    file with pyarrow (``pq.read_table``, and iterating ``ParquetFile.iter_batches`` in the
+    scan's batches, as the scan reads), for a snappy (pyarrow's default) and an uncompressed file.
+(e) ruptures Binseg ``linear`` on a subset: tightenings/s, and Rust's ratio to it.
 
 A sample is one (angle, torque) pair; every rate counts all samples of all tightenings (the
 ``angle`` list offsets), not only the elastic windows. This is a benchmark, not a test: nothing
@@ -39,7 +39,6 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 import tightscan
@@ -145,42 +144,6 @@ def _first_true(mask: np.ndarray) -> int:
     """Index of the first True, or len(mask) when there is none."""
     k = int(mask.argmax()) if mask.size else 0
     return k if mask.size and mask[k] else mask.size
-
-
-def detect_one(a: np.ndarray, t: np.ndarray, p: Params) -> Row:
-    """One tightening: angle ``a`` and torque ``t`` as float64 arrays."""
-    n = a.size
-    if n == 0 or not (np.isfinite(a).all() and np.isfinite(t).all()):
-        return FAILED
-    if n < p.min_samples or a.min() == a.max():
-        return FAILED
-
-    # Elastic window (physics/torque_rate.rs elastic_window).
-    i_peak = int(t.argmax())  # first maximum, as Rust's strict '>'
-    peak = float(t[i_peak])
-    if peak <= float(t.min()):
-        return FAILED
-    base = float(t[: i_peak + 1].min())
-    rise = peak - base
-    lo = base + p.start_fraction * rise
-    hi = base + p.end_fraction * rise
-    below = np.flatnonzero(t[:i_peak] < lo)
-    start = int(below[-1]) + 1 if below.size else 0
-    end = start + _first_true(t[start:i_peak] >= hi)
-    if end <= start or a[end - 1] <= a[start]:
-        return FAILED
-    a_lo, a_hi = float(a[start]), float(a[end - 1])
-    margin = p.trim_fraction * (a_hi - a_lo)
-    w = a[start:end]
-    start += _first_true(w >= a_lo + margin)
-    w = a[start:end]
-    keep = np.flatnonzero(w <= a_hi - margin)
-    end = start + int(keep[-1]) + 1 if keep.size else start
-    length = end - start
-    if length < p.min_samples or a[end - 1] <= a[start]:
-        return FAILED
-
-    return cusum_on_window(a, t, start, end, p, p.h)
 
 
 def cusum_on_window(a: np.ndarray, t: np.ndarray, start: int, end: int, p: Params, h: float) -> Row:
@@ -291,22 +254,6 @@ def cusum_on_window(a: np.ndarray, t: np.ndarray, start: int, end: int, p: Param
     alarm_index = start + int(np.flatnonzero(b == alarm_blk)[-1])
     change_index = start + int(np.flatnonzero(b == change_blk)[0])
     return Row(True, True, max_stat, reference, noise_sd * inflate, monitored, alarm_index, change_index, side)
-
-
-def detect_numpy(table: pa.Table, p: Params) -> list[Row]:
-    """Python loop over tightenings, numpy inside. Includes the float32 -> float64 conversion."""
-    angle = table.column("angle").combine_chunks()
-    torque = table.column("torque").combine_chunks()
-    offsets = angle.offsets.to_numpy()
-    a_all = angle.values.to_numpy(zero_copy_only=False).astype(np.float64)
-    t_all = torque.values.to_numpy(zero_copy_only=False).astype(np.float64)
-    if not np.array_equal(offsets, torque.offsets.to_numpy()):
-        raise ValueError("benchmark data: angle and torque lists differ in length")
-    rows = []
-    for i in range(len(offsets) - 1):
-        s, e = offsets[i], offsets[i + 1]
-        rows.append(detect_one(a_all[s:e], t_all[s:e], p))
-    return rows
 
 
 # ---------------------------------------------------------------------------------------------
@@ -489,72 +436,28 @@ def ruptures_binseg_rate(table: pa.Table, rust: pa.Table, n: int) -> dict[str, A
 # Comparison of the numpy rows with the Rust results
 
 
-def compare(rust: pa.Table, rows: list[Row]) -> dict[str, Any]:
-    status = rust.column("status").to_pylist()
-    detected = rust.column("change_detected").to_pylist()
-    max_stat = rust.column("cusum_max_statistic").to_pylist()
-    ref = rust.column("cusum_reference_rate").to_pylist()
-    alarm_idx = rust.column("cusum_alarm_index").to_pylist()
-    change_idx = rust.column("cusum_change_index").to_pylist()
-    side = rust.column("cusum_side").to_pylist()
-    n = len(rows)
-    same_status = same_detect = both_ok = same_alarm_row = alarms_both = 0
-    rust_alarms = numpy_alarms = 0
-    only_rust = only_numpy = 0
-    rel_err_max, rel_err_ref = [], []
-    for i, r in enumerate(rows):
-        rust_ok = status[i] == "ok"
-        same_status += rust_ok == r.ok
-        rd = bool(detected[i]) if rust_ok else False
-        nd = bool(r.alarm) if r.ok else False
-        rust_alarms += rd
-        numpy_alarms += nd
-        same_detect += rd == nd
-        only_rust += rd and not nd
-        only_numpy += nd and not rd
-        if rust_ok and r.ok:
-            both_ok += 1
-            rel_err_max.append(abs(max_stat[i] - r.max_statistic) / max(abs(max_stat[i]), 1e-12))
-            rel_err_ref.append(abs(ref[i] - r.reference_rate) / max(abs(ref[i]), 1e-300))
-            if rd and nd:
-                alarms_both += 1
-                same_alarm_row += (
-                    alarm_idx[i] == r.alarm_index and change_idx[i] == r.change_index and side[i] == r.side
-                )
-    return {
-        "tightenings": n,
-        "status_ok_agreement": same_status / n,
-        "change_detected_agreement": same_detect / n,
-        "rust_alarms": rust_alarms,
-        "numpy_alarms": numpy_alarms,
-        "alarm_only_in_rust": only_rust,
-        "alarm_only_in_numpy": only_numpy,
-        "alarms_in_both": alarms_both,
-        "alarm_and_change_index_and_side_equal": same_alarm_row,
-        "analysed_by_both": both_ok,
-        "max_statistic_rel_err_max": max(rel_err_max) if rel_err_max else None,
-        "max_statistic_rel_err_median": float(np.median(rel_err_max)) if rel_err_max else None,
-        "reference_rate_rel_err_max": max(rel_err_ref) if rel_err_ref else None,
-    }
-
-
 # ---------------------------------------------------------------------------------------------
 # Parquet: scan versus read
 
 
 def parquet_figures(table: pa.Table, samples: int, repeat: int, tmp: Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
-    batch_size = 8192  # scan_parquet's default
+    from tightscan._scan import BATCH_BYTES
+
     for compression in ("snappy", "none"):
         src = tmp / f"tightenings-{compression}.parquet"
         dst = tmp / f"results-{compression}.parquet"
         pq.write_table(table, src, compression=compression)
+        meta = pq.read_metadata(src)
+        widest = max(meta.row_group(i).total_byte_size / meta.row_group(i).num_rows for i in range(meta.num_row_groups))
+        batch_size = max(1, int(BATCH_BYTES // widest))  # scan_parquet's default batches
 
         def read_table() -> int:
             return int(pq.read_table(src).num_rows)
 
         def read_batches() -> int:
-            return sum(b.num_rows for b in ds.dataset(src, format="parquet").to_batches(batch_size=batch_size))
+            reader = pq.ParquetFile(src, buffer_size=1 << 20, pre_buffer=False)
+            return sum(b.num_rows for b in reader.iter_batches(batch_size=batch_size))
 
         def scan() -> int:
             return tightscan.scan_parquet(src, dst, progress=False).tightenings
@@ -566,7 +469,7 @@ def parquet_figures(table: pa.Table, samples: int, repeat: int, tmp: Path) -> di
             raise RuntimeError(f"scan_parquet reported {rows} rows, expected {table.num_rows}")
 
         # Breakdown: detection alone on the batches the scan reads, and writing the results.
-        batches = list(ds.dataset(src, format="parquet").to_batches(batch_size=batch_size))
+        batches = list(pq.ParquetFile(src).iter_batches(batch_size=batch_size))
         t_detect_batches, _, _, results = best_of(lambda: [_core.detect(b, None, [], 0) for b in batches], repeat)
         res_table = pa.Table.from_batches([rb for r in results for rb in r.to_batches()])
 
@@ -714,10 +617,10 @@ def main() -> int:
     for key, label in [
         ("file_bytes", "file size [MB]"),
         ("read_table_s", "pq.read_table [ms]"),
-        ("read_batches_s", "dataset.to_batches [ms]"),
+        ("read_batches_s", "iter_batches [ms]"),
         ("scan_parquet_s", "scan_parquet [ms]"),
         ("scan_over_read_table", "scan / read_table"),
-        ("scan_over_read_batches", "scan / to_batches"),
+        ("scan_over_read_batches", "scan / iter_batches"),
         ("breakdown_detect_on_read_batches_s", "  of which detect [ms]"),
         ("breakdown_write_results_s", "  of which write [ms]"),
         ("breakdown_unexplained_s", "  of which other [ms]"),

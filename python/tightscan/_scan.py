@@ -1184,6 +1184,11 @@ def scan_parquet(
     scan leaves nothing that looks finished; in a directory, ``resume=True`` skips the input
     files whose results are complete (recorded in ``_tightscan/``) and scans the rest.
 
+    Memory stays bounded whatever the files' size: each file is read a batch at a time
+    (``batch_size`` rows; by default about 16 MB of decoded data, from the file's own row
+    sizes) by a thread that decodes a couple of batches ahead of the engine, column chunks
+    through a small buffer rather than whole row groups; results are written as they come.
+
     ``engine``: ``"local"`` (this process, all cores in Rust), ``"dask"`` (the current
     ``dask.distributed`` client, else a local cluster) or ``"ray"`` (the running Ray, else a
     local one); one task per input file, the same rows in the same order on every engine.

@@ -48,10 +48,18 @@ def criterion_rows(root: Path) -> list[tuple[str, str, str, str]]:
         seconds = est["mean"]["point_estimate"] * 1e-9
         throughput = meta.get("throughput") or {}
         name = meta.get("full_id") or str(bench.parent.parent.relative_to(root))
-        if "Elements" in throughput:
-            rate = f"{throughput['Elements'] / seconds / 1e6:,.1f} M elements/s"
-        elif "Bytes" in throughput:
-            rate = f"{throughput['Bytes'] / seconds / 1e6:,.1f} MB/s"
+        # criterion's Throughput, serde's external tagging: {"Elements": n}, {"Bytes": n},
+        # {"BytesDecimal": n}, {"ElementsAndBytes": {"elements": n, "bytes": m}}
+        both = throughput.get("ElementsAndBytes")
+        elements = throughput.get("Elements") or (both or {}).get("elements")
+        nbytes = throughput.get("Bytes") or throughput.get("BytesDecimal") or (both or {}).get("bytes")
+        unit = "samples" if "detect" in name or "stages" in name else "elements"
+        if elements:
+            rate = f"{elements / seconds / 1e6:,.2f} M {unit}/s"
+            if nbytes:
+                rate += f" ({nbytes / seconds / 1e6:,.0f} MB/s)"
+        elif nbytes:
+            rate = f"{nbytes / seconds / 1e6:,.1f} MB/s"
         else:
             rate = f"{seconds * 1e3:,.2f} ms"
         per_core = "1 thread" if name.startswith(("stages/", "cusum/")) or "1_thread" in name else "all cores"

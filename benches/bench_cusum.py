@@ -314,7 +314,8 @@ def default_rule_one(a: np.ndarray, t: np.ndarray, window: tuple[float, float], 
     noise model's estimation (taken as given, which flatters numpy's time), the stop samples
     left out inside the window, the weights of noise growing with the torque, AR models of
     order > 1 and the whitening's own uncertainty, the end-of-curve (Chow) test of the break
-    detector, its encoder-step rule, and the statuses that demote an alarm (``model_misfit``).
+    detector, its encoder-step rule on the smoothed angle (applied here on the recorded one), and
+    the statuses that demote an alarm (``model_misfit``).
     """
     idx = np.flatnonzero((a >= window[0]) & (a <= window[1]))
     if idx.size < 20:
@@ -325,6 +326,26 @@ def default_rule_one(a: np.ndarray, t: np.ndarray, window: tuple[float, float], 
         x, y = x[1:] - lag1 * x[:-1], y[1:] - lag1 * y[:-1]
     scan = sup_lr(x, y)
     fired = bool(scan is not None and scan[0] > break_cv)
+    if fired and scan is not None and scan[0] <= 2.0 * break_cv:
+        # the encoder-step rule: a break counts when its jump exceeds 1.5 encoder steps
+        # (physics/torque_rate.rs encoder_resolution; engine/analysis/breaks.rs)
+        wa, wt = a[start:end], t[start:end]
+        steps = np.diff(wa)
+        positive = steps[steps > 1e-9]
+        resolution = 0.0
+        if positive.size:
+            smallest = float(positive.min())
+            q = steps / smallest
+            if np.count_nonzero(np.abs(q - np.round(q)) < 0.05) * 10 >= 9 * steps.size:
+                resolution = smallest
+        dx, dy = float(wa[-1] - wa[0]), float(wt[-1] - wt[0])
+        encoder_step = abs(dy / dx) * resolution if dx > 0 else 0.0
+        if encoder_step > 0:
+            k = scan[1] + (1 if lag1 else 0)
+            bl, al = np.polyfit(wa[:k], wt[:k], 1)
+            br, ar = np.polyfit(wa[k:], wt[k:], 1)
+            jump = (ar + br * wa[k]) - (al + bl * wa[k])
+            fired = bool(abs(jump) > 1.5 * encoder_step)
     cusum = cusum_on_window(a, t, start, end, p, h) if idx.size >= 50 else FAILED
     change = fired or bool(cusum.ok and cusum.alarm)
     return RuleRow(True, change, fired, scan[0] if scan else None, start + scan[1] + (1 if lag1 else 0) if scan else None, cusum)

@@ -118,7 +118,8 @@ def table(criterion: Path, results: Path) -> tuple[list[tuple[str, str, str, str
         rows.append((f"`tightscan simulate -o`, {label}", "-", f"{sim['seconds']:,.0f} s, {sim['samples_per_s'] / 1e6:.2f} M samples/s", ""))
         rows.append((f"peak RSS of `tightscan simulate -o`, {n:,}", "< 500 MB", f"{sim['peak_rss_mb']:,.0f} MB", _met(sim["peak_rss_mb"] < GOAL_RSS_MB)))
         load = f.get("machine", {}).get("load_at_end")
-        notes.append(f"`plant.py --n {n}`" + (f": load average {load[0]:.1f} at its end" if load else ""))
+        commit = f", code {f['commit']}" if f.get("commit") else ""
+        notes.append(f"`plant.py --n {n}`" + (f": load average {load[0]:.1f} at its end" if load else "") + commit)
     return rows, notes
 
 

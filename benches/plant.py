@@ -101,7 +101,19 @@ def plant(n: int, workdir: Path, seed: int = 1, keep: bool = False) -> dict[str,
         "read": {**read, "samples_per_s": samples / read["seconds"], "batch_rows": rows_per_batch},
         "scan_over_read": scan["seconds"] / read["seconds"],
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load_at_end": os.getloadavg()},
+        "commit": _commit(),
+        "timestamp": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
+
+
+def _commit() -> str | None:
+    """The code measured (uncommitted changes are marked)."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "python", "crates"], cwd=HERE, capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("+changes" if dirty else "")
 
 
 def _scan_batch_rows(path: Path) -> int:

@@ -75,8 +75,12 @@ build: $(VENV)/.built
 bench: $(VENV)/.built
 	$(PY) -m pip install --quiet ".[bench]" --no-deps 2>/dev/null || true
 	$(PY) -m pip install --quiet ruptures statsmodels river scipy matplotlib pandas
-	$(PY) benches/bench_cusum.py
 	cargo bench -p tightscan-benches
+	$(PY) benches/bench_cusum.py
+	# issue 15: simulate and scan end to end (peak RSS, scan / pyarrow read), then ONE table of
+	# every figure beside its goal, which also regenerates the README's performance table
+	$(PY) benches/plant.py --n 20000
+	$(PY) benches/perf_table.py --readme README.md
 
 clean:
 	rm -rf $(VENV) target out

@@ -9,7 +9,10 @@
 
 from __future__ import annotations
 
+import sys
+import types
 import warnings
+from typing import TYPE_CHECKING
 
 from . import _core
 from ._api import ResultColumn, result_columns, cusum_arl, cusum_threshold, detect_batch, result_schema, simulate
@@ -28,10 +31,12 @@ from .config import (
     config_to_toml,
 )
 from .exceptions import DataFileError, InvalidParameterError, SchemaError, TightscanError
-from .diagnose import diagnose
 from .rexroth import read_rexroth
 from .monitor import RegressionMonitor, monitor_regression, monitoring_critical_value
 from .sequence import SequenceMonitor, monitor_sequence
+
+if TYPE_CHECKING:
+    from .diagnose import diagnose
 
 __version__: str = _core.__version__
 
@@ -80,11 +85,34 @@ __all__ = [
 ]
 
 
+class _Package(types.ModuleType):
+    """``tightscan.diagnose`` stays the function once the subpackage of that name is imported
+    (``from tightscan.diagnose import Diagnosis`` would otherwise bind the package over it,
+    as the import system does for every submodule)."""
+
+    def __setattr__(self, name: str, value: object) -> None:
+        if name == "diagnose" and isinstance(value, types.ModuleType):
+            from .diagnose import diagnose as run_diagnosis
+
+            value = run_diagnosis
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
+
 def __getattr__(name: str) -> object:
     """``tightscan.plot`` and ``tightscan.report`` on first use: they need matplotlib (and
-    Jinja2), which ``import tightscan`` does not import."""
+    Jinja2), which ``import tightscan`` does not import. ``tightscan.diagnose`` too: the
+    residual loop needs scipy and statsmodels (about 100 MB and 1.5 s to import), which a
+    scan or a simulation never uses."""
     if name in ("plot", "report"):
         import importlib
 
         return importlib.import_module(f"{__name__}.{name}")
+    if name == "diagnose":
+        from .diagnose import diagnose as run_diagnosis
+
+        globals()["diagnose"] = run_diagnosis  # the function, not the subpackage of that name
+        return run_diagnosis
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

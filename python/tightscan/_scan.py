@@ -16,9 +16,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import queue
 import re
+import threading
 import time
 import uuid
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Generator, Iterator, Literal, Sequence, Union
 from urllib.parse import urlparse
@@ -343,7 +346,7 @@ class _Plan:
     pass_cols: list[str]
     columns: list[str] | None
     filter: pc.Expression | None
-    batch_size: int
+    batch_size: int | None
     partition_schema: pa.Schema
     out_schema: pa.Schema
     long_layout: bool
@@ -400,16 +403,202 @@ def _check_file(task: _FileTask, plan: _Plan) -> tuple[pa.Schema, list[str] | No
     return schema, cols
 
 
+# A batch holds about this much decoded data when the caller gives no ``batch_size``: big
+# enough that the per-batch Python bookkeeping and the engine's fan-out over cores are
+# negligible, small enough that a few batches in flight stay far below the memory goal.
+BATCH_BYTES = 16 << 20
+# Column chunks are read through a buffer of this size instead of whole (a Parquet row group
+# can be hundreds of MB; pyarrow.dataset's scanner decodes one whole at a time).
+_READ_BUFFER = 1 << 20
+_REMOTE_READ_BUFFER = 8 << 20
+# Batches decoded ahead of the engine by the reader thread.
+_READ_AHEAD = 2
+# Result rows per row group of a results file (~430 B each).
+RESULT_ROW_GROUP = 65_536
+
+
+def _batch_rows(plan: _Plan, metadata: pq.FileMetaData | None, long_layout: bool) -> int:
+    """Rows per batch: the caller's ``batch_size``, else about :data:`BATCH_BYTES` of decoded
+    data per batch from the file's own row sizes (a nested tightening is ~25 KB, a long-layout
+    sample ~30 B).
+
+    >>> _batch_rows(_Plan(None, [], None, None, 500, pa.schema([]), pa.schema([]), False), None, False)
+    500
+    """
+    if plan.batch_size is not None:
+        return plan.batch_size
+    widest = 0.0
+    if metadata is not None:
+        for i in range(metadata.num_row_groups):
+            rg = metadata.row_group(i)
+            if rg.num_rows:
+                widest = max(widest, rg.total_byte_size / rg.num_rows)
+    if widest <= 0:
+        return 1 << 20 if long_layout else 1024
+    return max(1, min(1 << 22, int(BATCH_BYTES // widest)))
+
+
+class _ReadAhead:
+    """Batches of an iterator produced by a thread of their own, at most ``depth`` ahead.
+
+    Parquet decoding and the engine both release the GIL, so the next batches decode while the
+    engine works on this one; the bounded queue keeps memory at a few batches whatever the
+    file's size. An error of the reader comes out of :meth:`__next__` where the batch would have.
+    """
+
+    _END = object()
+
+    def __init__(self, source: Iterator[Any], depth: int = _READ_AHEAD) -> None:
+        self._finished = False
+        self._queue: queue.Queue[tuple[Any, BaseException | None]] = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(source,), name="tightscan-read", daemon=True)
+        self._thread.start()
+
+    def _put(self, item: tuple[Any, BaseException | None]) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._queue.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self, source: Iterator[Any]) -> None:
+        try:
+            for item in source:
+                if not self._put((item, None)):
+                    return
+        except BaseException as e:  # handed to the consumer, raised there
+            self._put((None, e))
+            return
+        finally:
+            close = getattr(source, "close", None)
+            if close is not None:
+                close()
+        self._put((self._END, None))
+
+    def __iter__(self) -> "_ReadAhead":
+        return self
+
+    def __next__(self) -> Any:
+        if self._finished:
+            raise StopIteration
+        item, error = self._queue.get()
+        if error is not None:
+            self.close()
+            raise error
+        if item is self._END:
+            self.close()
+            raise StopIteration
+        return item
+
+    def close(self) -> None:
+        """Stops the reader (it may be blocked on a full queue) and lets go of what it read."""
+        self._finished = True
+        self._stop.set()
+        while self._thread.is_alive():
+            try:
+                self._queue.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        self._queue = queue.Queue()
+
+
+def _filter_columns(plan: _Plan, schema: pa.Schema, wanted: list[str]) -> list[str]:
+    """Columns the filter may name beyond those read (over-inclusive: a name anywhere in the
+    expression's text), so that rows can be filtered after decoding."""
+    if plan.filter is None:
+        return []
+    text = str(plan.filter)
+    return [n for n in schema.names if n not in wanted and n in text]
+
+
+def _parquet_batches(task: _FileTask, plan: _Plan, schema: pa.Schema, cols: list[str] | None) -> Iterator[pa.RecordBatch]:
+    """One Parquet file's rows, batch by batch, in bounded memory: pyarrow's streaming reader
+    (column chunks through a buffer, a batch decoded at a time), row groups pruned by the
+    filter's statistics, hive keys added as constant columns, rows filtered after decoding;
+    the same rows, columns and order as pyarrow.dataset's scanner of the fragment gives."""
+    fragment = task.fragment
+    wanted = list(cols) if cols is not None else list(schema.names)
+    read = wanted + _filter_columns(plan, schema, wanted)
+    physical = fragment.physical_schema
+    keys = ds.get_partition_keys(fragment.partition_expression)
+    if plan.filter is not None:
+        row_groups = [rg.id for rg in fragment.subset(filter=plan.filter, schema=schema).row_groups]
+    else:
+        row_groups = None
+    local = isinstance(fragment.filesystem, pafs.LocalFileSystem)
+    with fragment.filesystem.open_input_file(fragment.path) as handle:
+        reader = pq.ParquetFile(handle, buffer_size=_READ_BUFFER if local else _REMOTE_READ_BUFFER, pre_buffer=False)
+        if row_groups is None:
+            row_groups = list(range(reader.metadata.num_row_groups))
+        if not row_groups:
+            return
+        rows = _batch_rows(plan, reader.metadata, plan.long_layout)
+        file_cols = [c for c in read if c in physical.names]
+        for batch in reader.iter_batches(batch_size=rows, row_groups=row_groups, columns=file_cols, use_threads=True):
+            arrays, names = [], []
+            for name in read:
+                if name in physical.names:
+                    arrays.append(batch.column(name))
+                else:  # a hive key: one value for the whole file
+                    kind = schema.field(name).type
+                    value = keys.get(name)
+                    constant = pa.nulls(batch.num_rows, kind)
+                    arrays.append(constant if value is None else constant.fill_null(pa.scalar(value, kind)))
+                names.append(name)
+            batch = pa.RecordBatch.from_arrays(arrays, schema=pa.schema([schema.field(n) for n in names]))
+            if plan.filter is None:
+                yield batch
+                continue
+            kept = ds.dataset(batch).to_table(columns=wanted, filter=plan.filter)
+            for out in kept.to_batches():
+                if out.num_rows:
+                    yield out
+
+
+def _leading_rows_of(batch: pa.RecordBatch, carried: pa.RecordBatch) -> int:
+    """How many rows at the head of ``batch`` go on the tightening ``carried`` holds."""
+    ids = carried.column("tightening_id")
+    last = ids[len(ids) - 1]
+    head = batch.column("tightening_id")
+    same = pc.is_null(head) if not last.is_valid else pc.fill_null(pc.equal(head, last), False)
+    first_other = pc.index(same, False).as_py()
+    return batch.num_rows if first_other < 0 else int(first_other)
+
+
+def _detached_from_input(result: pa.Table, batch: pa.RecordBatch) -> pa.Table:
+    """A copy of the results that does not keep the input batch alive.
+
+    The engine passes ``tightening_id`` (and passthrough columns) on without copying, and
+    through the Arrow C interface one exported batch lives as long as any of its columns: so
+    any result column would keep the whole input batch (curves, ~25 KB per tightening) in
+    memory, and results held for a row group, or ids held for a file, would hold the file.
+    The copy costs the results' size (~430 B per tightening), 1-2 % of the input's.
+    """
+    if result.num_rows == 0 or not any(name in batch.schema.names for name in result.column_names):
+        return result
+    return result.take(pa.array(range(result.num_rows), pa.int64()))
+
+
 def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
-    """The results of one file, batch by batch (memory bounded by ``batch_size`` rows)."""
+    """The results of one file, batch by batch: a reader thread decodes a few batches ahead
+    while the engine (GIL released) works, so memory holds a few batches, not the file."""
     schema, cols = _check_file(task, plan)
+    parquet_file = isinstance(task.fragment, ds.ParquetFileFragment)
     try:
-        if isinstance(task.fragment, _DatasetFragment):
-            scanner = ds.Scanner.from_dataset(task.fragment.dataset, columns=cols, filter=plan.filter, batch_size=plan.batch_size)
+        if parquet_file:
+            # bind the projection and the filter now, so a bad one is named before reading
+            ds.Scanner.from_batches(iter(()), schema=schema, columns=cols, filter=plan.filter)
+            source: Iterator[pa.RecordBatch] = _parquet_batches(task, plan, schema, cols)
         else:
-            scanner = ds.Scanner.from_fragment(
-                task.fragment, schema=schema, columns=cols, filter=plan.filter, batch_size=plan.batch_size, use_threads=True
-            )
+            rows = plan.batch_size or _batch_rows(plan, None, plan.long_layout)
+            if isinstance(task.fragment, _DatasetFragment):
+                scanner = ds.Scanner.from_dataset(task.fragment.dataset, columns=cols, filter=plan.filter, batch_size=rows)
+            else:
+                scanner = ds.Scanner.from_fragment(task.fragment, schema=schema, columns=cols, filter=plan.filter, batch_size=rows, use_threads=True)
+            source = iter(scanner.to_batches())
     except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError) as e:
         raise SchemaError(f"{task.name}: {e}") from e
     seen: set[Any] = set()
@@ -423,6 +612,7 @@ def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
         except SchemaError as e:
             raise SchemaError(f"{task.name}: {e}", e.column) from e
         done += result.num_rows
+        result = _detached_from_input(result, batch)
         if plan.long_layout:
             ids = result.column("tightening_id").to_pylist()
             repeated = seen.intersection(ids)
@@ -440,22 +630,31 @@ def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
                 raise SchemaError(f"{task.name} has columns of other types than the first file: {e}") from e
         return result
 
-    batches = scanner.to_batches()
-    while True:
-        try:
-            batch = next(batches)
-        except StopIteration:
-            break
-        except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as e:
-            raise DataFileError(f"cannot read Parquet file {task.name}: {e}", task.name) from e
-        if plan.long_layout:
-            if carry is not None and carry.num_rows:
-                batch = pa.Table.from_batches([carry, batch]).combine_chunks().to_batches()[0]
-            batch, carry = _hold_back_last_tightening(batch)
-        if batch.num_rows:
-            yield run(batch)
-    if carry is not None and carry.num_rows:
-        yield run(carry)
+    batches = _ReadAhead(source)
+    try:
+        while True:
+            try:
+                batch = next(batches)
+            except StopIteration:
+                break
+            except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as e:
+                raise DataFileError(f"cannot read Parquet file {task.name}: {e}", task.name) from e
+            if plan.long_layout:
+                if carry is not None and carry.num_rows:
+                    # only the carried tightening is copied together, not the whole batch
+                    k = _leading_rows_of(batch, carry)
+                    carry = pa.concat_batches([carry, batch.slice(0, k)])
+                    if k == batch.num_rows:
+                        continue  # the tightening goes on in the next batch too
+                    yield run(carry)
+                    batch = batch.slice(k)
+                batch, carry = _hold_back_last_tightening(batch)
+            if batch.num_rows:
+                yield run(batch)
+        if carry is not None and carry.num_rows:
+            yield run(carry)
+    finally:
+        batches.close()
 
 
 def _tmp_name(final: str) -> str:
@@ -464,7 +663,12 @@ def _tmp_name(final: str) -> str:
 
 
 class _AtomicParquet:
-    """A Parquet file that appears under its final name only once it is whole."""
+    """A Parquet file that appears under its final name only once it is whole.
+
+    Writes go to a thread of their own, one write in flight per file (encoding and
+    compressing release the GIL), so that writing overlaps the next batch's detection; an
+    error of a write comes out of the next :meth:`write` or of :meth:`commit`.
+    """
 
     def __init__(self, fs: pafs.FileSystem, final: str, schema: pa.Schema) -> None:
         self.fs, self.final, self.tmp = fs, final, _tmp_name(final)
@@ -473,17 +677,42 @@ class _AtomicParquet:
             fs.create_dir(parent, recursive=True)
         self.stream = fs.open_output_stream(self.tmp)
         self.writer = pq.ParquetWriter(self.stream, schema)
+        self.pending: Future[None] | None = None
+        self.buffered: list[pa.Table] = []
+        self.buffered_rows = 0
+
+    def _wait(self) -> None:
+        pending, self.pending = self.pending, None
+        if pending is not None:
+            pending.result()
 
     def write(self, table: pa.Table) -> None:
-        self.writer.write_table(table)
+        # results gathered into row groups of RESULT_ROW_GROUP rows (~30 MB), not one per batch
+        self.buffered.append(table)
+        self.buffered_rows += table.num_rows
+        if self.buffered_rows >= RESULT_ROW_GROUP:
+            self._flush()
+
+    def _flush(self) -> None:
+        self._wait()
+        if self.buffered:
+            table = self.buffered[0] if len(self.buffered) == 1 else pa.concat_tables(self.buffered)
+            self.buffered, self.buffered_rows = [], 0
+            self.pending = _writer_pool().submit(self.writer.write_table, table, RESULT_ROW_GROUP)
 
     def commit(self) -> None:
+        self._flush()
+        self._wait()
         self.writer.close()
         self.stream.close()
         self.fs.move(self.tmp, self.final)
 
     def abort(self) -> None:
         try:
+            try:
+                self._wait()
+            except Exception:
+                pass  # the write that failed is why we abort; its error is already on its way
             self.writer.close()
             self.stream.close()
         finally:
@@ -491,6 +720,17 @@ class _AtomicParquet:
                 self.fs.delete_file(self.tmp)
             except OSError:
                 pass
+
+
+_WRITER_POOL: ThreadPoolExecutor | None = None
+
+
+def _writer_pool() -> ThreadPoolExecutor:
+    """One writing thread for the process (made on first use; not pickled with a plan)."""
+    global _WRITER_POOL
+    if _WRITER_POOL is None:
+        _WRITER_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tightscan-write")
+    return _WRITER_POOL
 
 
 def _manifest_path(plan: _Plan, name: str) -> str:
@@ -544,7 +784,7 @@ def _write_file_outputs(task: _FileTask, plan: _Plan, outcome: _FileOutcome) -> 
         for result in _detect_file(task, plan):
             outcome.stats.tally(result)
             if plan.long_layout:
-                ids.append(result.column("tightening_id").combine_chunks() if isinstance(result.column("tightening_id"), pa.ChunkedArray) else result.column("tightening_id"))
+                ids.append(_one_array(result.column("tightening_id")))
             if plan.partition_by is None:
                 writer("").write(result)
             else:
@@ -578,13 +818,27 @@ def _write_file_outputs(task: _FileTask, plan: _Plan, outcome: _FileOutcome) -> 
     )
 
 
-def _scan_file(task: _FileTask, plan: _Plan) -> _FileOutcome:
+def _scan_file(task: _FileTask, plan: _Plan, sink: "_AtomicParquet | None" = None) -> _FileOutcome:
     """One file, start to end; what an engine runs as one task. Bad-file errors come back in
     the outcome (the same on every engine), anything else raises and the engine may retry:
-    a retry writes the same final names again, never a second copy."""
+    a retry writes the same final names again, never a second copy.
+
+    Into one results file, a ``sink`` (the local engine, when any bad file fails the whole
+    scan) takes the results batch by batch as they come; without one (Dask, Ray, or
+    ``on_bad_file="skip"``, where a file found bad half-way must leave no rows) the file's
+    results come back whole in the outcome for the driver to write."""
     outcome = _FileOutcome(task.index, task.name)
     try:
-        if plan.out_fs is None:
+        if plan.out_fs is None and sink is not None:
+            ids: list[pa.Array] = []
+            for result in _detect_file(task, plan):
+                outcome.stats.tally(result)
+                if plan.long_layout:
+                    ids.append(_one_array(result.column("tightening_id")))
+                sink.write(result)
+            if plan.long_layout:
+                outcome.ids = pa.concat_arrays(ids) if ids else pa.array([], plan.out_schema.field("tightening_id").type)
+        elif plan.out_fs is None:
             tables = list(_detect_file(task, plan))
             outcome.table = pa.concat_tables(tables) if tables else plan.out_schema.empty_table()
             outcome.stats.tally(outcome.table)
@@ -597,13 +851,20 @@ def _scan_file(task: _FileTask, plan: _Plan) -> _FileOutcome:
     return outcome
 
 
+def _one_array(column: pa.ChunkedArray | pa.Array) -> pa.Array:
+    """A column as one array (free when it is one chunk already, as the engine's are)."""
+    if isinstance(column, pa.ChunkedArray):
+        return column.chunk(0) if column.num_chunks == 1 else column.combine_chunks()
+    return column
+
+
 # ---------------------------------------------------------------------------------------------
 # Engines: the same per-file function, here, on Dask or on Ray
 
 
-def _run_local(tasks: list[_FileTask], plan: _Plan, bar: Progress) -> Generator[_FileOutcome, None, None]:
+def _run_local(tasks: list[_FileTask], plan: _Plan, bar: Progress, sink: "_AtomicParquet | None" = None) -> Generator[_FileOutcome, None, None]:
     for task in tasks:
-        yield _scan_file(task, plan)
+        yield _scan_file(task, plan, sink)
         bar.advance()
 
 
@@ -768,7 +1029,7 @@ def _plan_scan(
     partitioning: str | ds.Partitioning | None = "hive",
     filesystem: Any = None,
     passthrough: Sequence[str] | bool | None = None,
-    batch_size: int = 8192,
+    batch_size: int | None = None,
     partition_by: Sequence[str] | None = None,
     on_bad_file: str = "raise",
     resume: bool = False,
@@ -776,7 +1037,7 @@ def _plan_scan(
     """Everything a scan decides before it reads a row: the files, the schema, the plan."""
     if on_bad_file not in ("raise", "skip"):
         raise InvalidParameterError(f"on_bad_file must be 'raise' or 'skip', not {on_bad_file!r}", "on_bad_file")
-    if batch_size < 1:
+    if batch_size is not None and batch_size < 1:
         raise InvalidParameterError(f"batch_size must be positive, not {batch_size}", "batch_size")
     if isinstance(columns, str):
         columns = [columns]
@@ -895,7 +1156,7 @@ def scan_parquet(
     partitioning: str | ds.Partitioning | None = "hive",
     filesystem: Any = None,
     passthrough: Sequence[str] | bool | None = None,
-    batch_size: int = 8192,
+    batch_size: int | None = None,
     progress: bool | None = None,
     engine: Engine = "local",
     partition_by: Sequence[str] | None = None,
@@ -922,6 +1183,11 @@ def scan_parquet(
     results. Outputs appear only when complete (temporary name, then rename), so a killed
     scan leaves nothing that looks finished; in a directory, ``resume=True`` skips the input
     files whose results are complete (recorded in ``_tightscan/``) and scans the rest.
+
+    Memory stays bounded whatever the files' size: each file is read a batch at a time
+    (``batch_size`` rows; by default about 16 MB of decoded data, from the file's own row
+    sizes) by a thread that decodes a couple of batches ahead of the engine, column chunks
+    through a small buffer rather than whole row groups; results are written as they come.
 
     ``engine``: ``"local"`` (this process, all cores in Rust), ``"dask"`` (the current
     ``dask.distributed`` client, else a local cluster) or ``"ray"`` (the running Ray, else a
@@ -972,7 +1238,12 @@ def scan_parquet(
     bar = Progress("scanning files", len(tasks), progress, unit="files")
     sink: _AtomicParquet | None = _AtomicParquet(setup.out_fs, setup.out_path, plan.out_schema) if single else None
     seen_ids: set[Any] = set()
-    outcomes = _ENGINES[engine]([t for t in tasks if t.index not in bad], plan, bar)
+    todo_tasks = [t for t in tasks if t.index not in bad]
+    if engine == "local" and sink is not None and on_bad_file == "raise":
+        # results go straight into the file as they come: a bad file fails the scan anyway
+        outcomes = _run_local(todo_tasks, plan, bar, sink)
+    else:
+        outcomes = _ENGINES[engine](todo_tasks, plan, bar)
     try:
         by_index = {t.index: t for t in tasks}
         for task in tasks:

@@ -568,20 +568,6 @@ def _leading_rows_of(batch: pa.RecordBatch, carried: pa.RecordBatch) -> int:
     return batch.num_rows if first_other < 0 else int(first_other)
 
 
-def _detached_from_input(result: pa.Table, batch: pa.RecordBatch) -> pa.Table:
-    """A copy of the results that does not keep the input batch alive.
-
-    The engine passes ``tightening_id`` (and passthrough columns) on without copying, and
-    through the Arrow C interface one exported batch lives as long as any of its columns: so
-    any result column would keep the whole input batch (curves, ~25 KB per tightening) in
-    memory, and results held for a row group, or ids held for a file, would hold the file.
-    The copy costs the results' size (~430 B per tightening), 1-2 % of the input's.
-    """
-    if result.num_rows == 0 or not any(name in batch.schema.names for name in result.column_names):
-        return result
-    return result.take(pa.array(range(result.num_rows), pa.int64()))
-
-
 def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
     """The results of one file, batch by batch: a reader thread decodes a few batches ahead
     while the engine (GIL released) works, so memory holds a few batches, not the file."""
@@ -612,7 +598,6 @@ def _detect_file(task: _FileTask, plan: _Plan) -> Iterator[pa.Table]:
         except SchemaError as e:
             raise SchemaError(f"{task.name}: {e}", e.column) from e
         done += result.num_rows
-        result = _detached_from_input(result, batch)
         if plan.long_layout:
             ids = result.column("tightening_id").to_pylist()
             repeated = seen.intersection(ids)

@@ -398,21 +398,7 @@ fn quadratic_basis(len: usize) -> Vec<Vec<f64>> {
 /// the basis has fewer than three terms.
 fn residual_weights_direct(len: usize, max_lag: usize) -> Vec<Vec<f64>> {
     let l = len as f64;
-    // Orthonormal basis of (1, t, t^2) on evenly spaced points (local blocks are close to that).
-    let mean = (l - 1.0) / 2.0;
-    let mut columns: Vec<Vec<f64>> = Vec::with_capacity(LOCAL_TERMS);
-    for k in 0..LOCAL_TERMS {
-        let mut v: Vec<f64> = (0..len).map(|t| ((t as f64 - mean) / l).powi(k as i32)).collect();
-        for b in &columns {
-            let dot: f64 = v.iter().zip(b).map(|(a, c)| a * c).sum();
-            v.iter_mut().zip(b).for_each(|(a, c)| *a -= dot * c);
-        }
-        let norm = v.iter().map(|a| a * a).sum::<f64>().sqrt();
-        if norm > 1e-12 {
-            v.iter_mut().for_each(|a| *a /= norm);
-            columns.push(v);
-        }
-    }
+    let columns = quadratic_basis(len);
     let terms = columns.len();
     let q: Vec<Vec<f64>> = (0..len).map(|t| columns.iter().map(|c| c[t]).collect()).collect();
     let p = |i: usize, j: usize| (0..terms).map(|a| q[i][a] * q[j][a]).sum::<f64>();

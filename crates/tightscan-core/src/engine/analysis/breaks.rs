@@ -25,16 +25,22 @@ impl Detector {
         }
         let (wx, wy) = (&s.wx[lag..], &s.wy[lag..]);
         let nw = n - lag;
-        let scan = sup_lr_scan(&wx[..nw], &wy[..nw], min_segment(nw), &mut s.prefix)?;
         let breaks = &self.config.breaks;
-        let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction);
-        let critical_value = sup_lr_critical_value(nw, scan_alpha).ok()?;
+        let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction - breaks.head_fraction);
+        // A window too short for two minimum segments gets no scan, but its end and start
+        // tests still run: the windows of HDT curves whose friction rose late are cut short by
+        // the jump itself (the torque reaches the end of the window's rise at once), and the
+        // change is all in the samples up to the peak.
+        let scan = sup_lr_scan(&wx[..nw], &wy[..nw], min_segment(nw), &mut s.prefix)
+            .and_then(|scan| Some((scan, sup_lr_critical_value(nw, scan_alpha).ok()?)));
         let (x, y) = (&s.x[..n], &s.y[..n]);
-        let split = scan.split + lag;
         let xs = &s.xs[..n];
-        let (al, bl) = line(&xs[..split], &y[..split]);
-        let (ar, br) = line(&xs[split..], &y[split..]);
-        let scan_jump = (ar + br * xs[split]) - (al + bl * xs[split]);
+        let scan_jump = scan.map(|(scan, _)| {
+            let split = scan.split + lag;
+            let (al, bl) = line(&xs[..split], &y[..split]);
+            let (ar, br) = line(&xs[split..], &y[split..]);
+            (ar + br * xs[split]) - (al + bl * xs[split])
+        });
         // Angle quantisation: where the angle advanced per sample is close to a multiple of the
         // encoder resolution r, the quantisation error drifts slowly and wraps by r, which is a
         // torque step of G r against the recorded angle (G the torque rate): one encoder step.
@@ -50,15 +56,20 @@ impl Detector {
         // uncertain, the scan is judged by its p-value averaged over it
         // (`sup_lr_predictive_p_value`); for white noise by the table's critical value.
         let se = s.noise.gain_log_se;
-        let p_value = sup_lr_predictive_p_value(nw, scan.statistic, se);
-        let significant = if se > 0.0 { p_value <= scan_alpha } else { scan.statistic > critical_value };
-        let scan_alarm = significant && (beyond_step(scan_jump) || scan.statistic > 2.0 * critical_value);
+        let p_value = scan.map(|(scan, _)| sup_lr_predictive_p_value(nw, scan.statistic, se));
+        let scan_alarm = match (scan, p_value, scan_jump) {
+            (Some((scan, critical_value)), Some(p_value), Some(jump)) => {
+                let significant = if se > 0.0 { p_value <= scan_alpha } else { scan.statistic > critical_value };
+                significant && (beyond_step(jump) || scan.statistic > 2.0 * critical_value)
+            }
+            _ => false,
+        };
 
         // End test: every tail the scan cannot isolate (shorter than its minimum segment), up to
         // the peak (the samples past the window, which only this test uses).
         let tail = if breaks.tail_fraction > 0.0 {
             let extra = s.x.len() - n;
-            tail_test(wx, wy, min_segment(nw) - 1 + extra, &mut s.prefix).map(|t| {
+            tail_test(wx, wy, min_segment(nw) - 1 + extra, s.noise.gain_log_se, &mut s.prefix).map(|t| {
                 let start = t.start + lag;
                 let (a, b) = line(&s.xs[..start], &s.y[..start]);
                 let tail_len = (s.xs.len() - start) as f64;
@@ -71,23 +82,64 @@ impl Detector {
         let tail_alpha = self.break_alpha * breaks.tail_fraction;
         let tail_alarm = tail.is_some_and(|(t, _, dev)| t.p_value <= tail_alpha && (beyond_step(dev) || t.p_value <= 0.01 * tail_alpha));
 
+        // Start test: the end test on the window read backwards, over every head the scan
+        // cannot isolate (shorter than its minimum segment). The head is the part before the
+        // change; the change is at the first sample after it. Its deviation, in torque units, is
+        // that of the recorded samples up to there (the filter's past included) from the line
+        // fitted after them.
+        let head = if breaks.head_fraction > 0.0 {
+            s.reversed_x.clear();
+            s.reversed_x.extend(wx[..nw].iter().rev());
+            s.reversed_y.clear();
+            s.reversed_y.extend(wy[..nw].iter().rev());
+            tail_test(&s.reversed_x, &s.reversed_y, min_segment(nw) - 1, s.noise.gain_log_se, &mut s.prefix).map(|t| {
+                let first_after = nw - t.start + lag;
+                let (a, b) = line(&xs[first_after..], &y[first_after..]);
+                let deviation = xs[..first_after].iter().zip(&y[..first_after]).map(|(xi, yi)| yi - a - b * xi).sum::<f64>() / first_after as f64;
+                (t, first_after, deviation)
+            })
+        } else {
+            None
+        };
+        let head_alpha = self.break_alpha * breaks.head_fraction;
+        let head_alarm = head.is_some_and(|(t, _, dev)| t.p_value <= head_alpha && (beyond_step(dev) || t.p_value <= 0.01 * head_alpha));
+
         let (curvature_p_value, smooth_fits_better) = match curvature(&s.xs[..n], &s.weights, wx, &wy[..nw], &s.noise.coefficients, s.snug_x, &mut s.line_residuals) {
             Some((p, rss_quad, rss_drift)) => {
-                let rss_break = line_rss(&wx[..nw], &wy[..nw]) * (-scan.statistic / nw as f64).exp();
+                let mut rss_break = line_rss(&wx[..nw], &wy[..nw]) * (-scan.map_or(0.0, |(scan, _)| scan.statistic) / nw as f64).exp();
+                if let Some((_, first_after, _)) = head.filter(|_| head_alarm) {
+                    // The head's own line and the line after it, as the scan's two lines.
+                    let k = first_after - lag;
+                    rss_break = rss_break.min(line_rss(&wx[..k], &wy[..k]) + line_rss(&wx[k..nw], &wy[k..nw]));
+                }
                 (Some(p), rss_quad <= rss_break && rss_quad <= rss_drift)
             }
             None => (None, false),
         };
-        let (change_index, jump) = match tail {
-            Some((_, at, dev)) if tail_alarm && !scan_alarm => (at, dev),
-            _ => (s.index[split], scan_jump),
+        // Where the break is: the test that alarmed, else the scan's best split, else the
+        // most significant of the end and start tests.
+        let scan_break = scan.zip(scan_jump).map(|((scan, _), jump)| (s.index[scan.split + lag], jump));
+        let tail_break = tail.map(|(t, at, dev)| (t.p_value, at, dev));
+        let head_break = head.map(|(t, first_after, dev)| (t.p_value, s.index[first_after], -dev));
+        let (change_index, jump) = match (scan_break, tail_break, head_break) {
+            (Some(b), ..) if scan_alarm => b,
+            (_, Some((_, at, dev)), _) if tail_alarm => (at, dev),
+            (.., Some((_, at, dev))) if head_alarm => (at, dev),
+            (Some(b), ..) => b,
+            (None, Some(t), Some(h)) => {
+                let (_, at, dev) = if h.0 < t.0 { h } else { t };
+                (at, dev)
+            }
+            (None, Some((_, at, dev)), None) | (None, None, Some((_, at, dev))) => (at, dev),
+            (None, None, None) => return None,
         };
         Some(BreakRow {
-            alarm: scan_alarm || tail_alarm,
-            statistic: scan.statistic,
-            critical_value,
+            alarm: scan_alarm || tail_alarm || head_alarm,
+            statistic: scan.map(|(scan, _)| scan.statistic),
+            critical_value: scan.map(|(_, critical_value)| critical_value),
             p_value,
             tail_p_value: tail.map(|(t, ..)| t.p_value),
+            head_p_value: head.map(|(t, ..)| t.p_value),
             change_index,
             change_angle: angle[change_index].to_f64(),
             jump,

@@ -42,6 +42,9 @@ pub(super) struct Scratch {
     block_first: Vec<usize>,
     has_force: bool,
     regressor: Vec<f64>,
+    /// The whitened window read backwards, for the start test of [`Detector::break_row`].
+    reversed_x: Vec<f64>,
+    reversed_y: Vec<f64>,
     /// Samples of the window in `x`, `y`, `index` (stops left out); past it, up to the peak,
     /// those only the end test uses.
     n_window: usize,

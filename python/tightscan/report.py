@@ -208,7 +208,7 @@ def _recorded(table: pa.Table, source: PathLike | None) -> dict[str, Any] | None
         if isinstance(value, (list, tuple)):
             return ", ".join(json.dumps(v) if isinstance(v, dict) else str(v) for v in value)
         if value is None:
-            return "unset (derived from alpha and the rule)"
+            return "unset"
         return _fmt(value) if rounded and isinstance(value, float) else str(value)
 
     config = record.get("config") or {}

@@ -145,6 +145,10 @@ def detector_traces(curves: Any, tightening_id: Any, config: ConfigLike = None) 
     densities before and after (:class:`KdeTrace`); ``result`` is the row ``detect_batch`` gives
     for the tightening in ``curves``.
 
+    With ``kde=True`` the kernel-density test's permutations are seeded by the tightening's
+    row, as ``detect_batch`` seeds them in a table of one record batch (a table in several
+    batches numbers the rows of each batch from 0, and its KDE p-values may differ).
+
     A malformed tightening (channels of different lengths, nulls, too short ...) gives its
     ``status`` and no traces; an id not in ``curves`` raises
     :class:`~tightscan.InvalidParameterError`, a table without the channels

@@ -3,9 +3,10 @@
 //! quantisation from passing for a friction change.
 
 use crate::detectors::least_squares_line as line;
-use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_predictive_p_value, sup_lr_scan, tail_test};
+use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_predictive_p_value, sup_lr_scan_profile, tail_test};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
+use crate::engine::traces::BreakTrace;
 use crate::physics::torque_rate::encoder_resolution;
 use crate::engine::Detector;
 
@@ -25,7 +26,8 @@ impl Detector {
         }
         let (wx, wy) = (&s.wx[lag..], &s.wy[lag..]);
         let nw = n - lag;
-        let scan = sup_lr_scan(&wx[..nw], &wy[..nw], min_segment(nw), &mut s.prefix)?;
+        let mut profile = s.trace.is_some().then(Vec::new);
+        let scan = sup_lr_scan_profile(&wx[..nw], &wy[..nw], min_segment(nw), &mut s.prefix, profile.as_mut())?;
         let breaks = &self.config.breaks;
         let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction);
         let critical_value = sup_lr_critical_value(nw, scan_alpha).ok()?;
@@ -78,6 +80,20 @@ impl Detector {
             }
             None => (None, false),
         };
+        if let (Some(traces), Some(lr)) = (s.trace.as_deref_mut(), profile) {
+            // Split k (a prefix length of the whitened window) starts the right segment at
+            // whitened sample k, sample k + lag of the window.
+            let first = min_segment(nw).max(3);
+            traces.breaks = Some(BreakTrace {
+                angle: (first..first + lr.len()).map(|k| angle[s.index[k + lag]].to_f64()).collect(),
+                lr,
+                critical_value,
+                decision_value: if se > 0.0 { predictive_critical_value(nw, scan_alpha, se) } else { critical_value },
+                significant,
+                scan_alarm,
+                tail_alarm,
+            });
+        }
         let (change_index, jump) = match tail {
             Some((_, at, dev)) if tail_alarm && !scan_alarm => (at, dev),
             _ => (s.index[split], scan_jump),
@@ -95,6 +111,25 @@ impl Detector {
             smooth_fits_better,
         })
     }
+}
+
+/// The sup-LR statistic whose predictive p-value ([`sup_lr_predictive_p_value`], non-increasing
+/// in the statistic) is `alpha`, by bisection: the level the scan's profile must pass where the
+/// noise model's uncertainty widens the test.
+fn predictive_critical_value(n: usize, alpha: f64, gain_log_se: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0_f64, 1.0_f64);
+    while sup_lr_predictive_p_value(n, hi, gain_log_se) > alpha && hi < 1e6 {
+        (lo, hi) = (hi, 2.0 * hi);
+    }
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if sup_lr_predictive_p_value(n, mid, gain_log_se) > alpha {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    hi
 }
 
 /// Residual sum of squares of the least-squares line through `x`, `y`.

@@ -103,7 +103,22 @@ def demo_tightening() -> Path:
     return path
 
 
-FIGURES = {"demo_tightening": demo_tightening, "simulated_vs_real": simulated_vs_real}
+def demo_detectors() -> Path:
+    """README figure: the detectors' own traces for the tightening of :func:`demo_tightening`,
+    drawn by :func:`tightscan.plot.plot_detectors` (from ``tightscan.detector_traces``)."""
+    from tightscan.plot import plot_detectors
+
+    curves, _ = tightscan.simulate(200, seed=2026)
+    results = tightscan.detect_batch(curves)
+    changed = results.filter(results.column("change_detected")).column("tightening_id").to_pylist()
+    fig = plot_detectors(curves, results, changed[0])
+    OUT.mkdir(parents=True, exist_ok=True)
+    path = OUT / "demo_detectors.png"
+    fig.savefig(path, dpi=70)
+    return path
+
+
+FIGURES = {"demo_tightening": demo_tightening, "demo_detectors": demo_detectors, "simulated_vs_real": simulated_vs_real}
 
 if __name__ == "__main__":
     for name in sys.argv[1:] or list(FIGURES):

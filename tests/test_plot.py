@@ -125,24 +125,24 @@ def test_missing_channel_names_it(scanned: tuple[pa.Table, pa.Table]) -> None:
 
 
 def test_detector_charts(scanned: tuple[pa.Table, pa.Table]) -> None:
+    """The detector panels draw the engine's traces against the limits the row reports."""
     curves, results = scanned
     tid = _ids(results, changed=True)[0]
     row = plot.result_row(results, tid)
     fig = plot.plot_detectors(curves, results, tid)
     gids = _gids(fig)
-    assert {"statistic_bars", "limit", "residual", "block_rates", "cusum_reference", "kde:before", "kde:after"} <= gids
-    bars = next(ax for ax in fig.axes if any(p.get_gid() == "statistic_bars" for p in ax.patches))
-    widths = {tick.get_text(): p.get_width() for tick, p in zip(bars.get_yticklabels(), bars.patches)}
-    assert widths["break"] == pytest.approx(row["break_statistic"] / row["break_critical_value"])
-    assert widths["cusum"] == pytest.approx(row["cusum_max_statistic"] / row["cusum_threshold"])
-    # CUSUM and L1 alarm exactly when beyond their limit; every bar says whether it alarmed
-    for det in ("cusum", "l1"):
-        assert (widths[det] > 1.0) == bool(row[f"{det}_alarm"]), det
-    texts = {t.get_gid(): t.get_text() for t in bars.texts}
-    for det in widths:
-        assert texts[f"bar_text:{det}"].endswith(": alarm" if row[f"{det}_alarm"] else ": no alarm"), det
-    if row["break_alarm"]:
-        assert "break_change_angle" in gids
+    assert {"cusum:upper", "cusum:lower", "cusum:threshold", "break:lr", "break:critical_value", "break:split", "kde:before", "kde:after", "change_onset"} <= gids
+
+    def line(gid: str) -> Any:
+        return next(x for ax in fig.axes for x in ax.get_lines() if x.get_gid() == gid)
+
+    assert line("cusum:threshold").get_ydata()[0] == pytest.approx(row["cusum_threshold"])
+    assert line("break:critical_value").get_ydata()[0] == pytest.approx(row["break_critical_value"])
+    assert max(line("break:lr").get_ydata()) == pytest.approx(row["break_statistic"])
+    top = np.maximum(line("cusum:upper").get_ydata(), line("cusum:lower").get_ydata())
+    assert bool((top > row["cusum_threshold"]).any()) == bool(row["cusum_alarm"])
+    assert line("change_onset").get_xdata()[0] == pytest.approx(row["change_angle"])
+    assert all(d in fig.get_suptitle() for d in row["detectors_fired"].split(","))
 
 
 def test_sequence_control_chart_marks_the_shifted_group() -> None:

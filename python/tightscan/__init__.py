@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from . import _core
 from ._api import ResultColumn, result_columns, cusum_arl, cusum_threshold, detect_batch, result_schema, simulate
+from ._metadata import RESULTS_METADATA_KEY, results_metadata, scan_metadata
 from ._scan import ScanSummary, read_results, scan_parquet
 from .config import (
     BlockConfig,
@@ -34,6 +35,7 @@ from .exceptions import DataFileError, InvalidParameterError, SchemaError, Tight
 from .rexroth import read_rexroth
 from .monitor import RegressionMonitor, monitor_regression, monitoring_critical_value
 from .sequence import SequenceMonitor, monitor_sequence
+from .traces import BreakTrace, CusumTrace, DetectorTraces, KdeTrace, L1Trace, detector_traces
 
 if TYPE_CHECKING:
     from .diagnose import diagnose
@@ -55,6 +57,15 @@ __all__ = [
     "read_results",
     "result_schema",
     "result_columns",
+    "results_metadata",
+    "scan_metadata",
+    "RESULTS_METADATA_KEY",
+    "detector_traces",
+    "DetectorTraces",
+    "CusumTrace",
+    "L1Trace",
+    "BreakTrace",
+    "KdeTrace",
     "ResultColumn",
     "read_rexroth",
     "monitor_sequence",

@@ -9,6 +9,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from . import _core
+from ._metadata import scan_metadata, with_metadata
 from .config import ConfigLike, as_dict
 from .exceptions import SchemaError
 
@@ -268,6 +269,11 @@ def detect_batch(
     column, and an object that is not a table raises ``TypeError``.
     :func:`result_schema` gives the Arrow schema of the result before the run.
 
+    The results record how they were made (the version, alpha, the rule's shares and the full
+    effective config) as JSON under the schema metadata key ``b"tightscan"`` of the pyarrow
+    Table, in ``attrs["tightscan"]`` of a pandas DataFrame; polars frames cannot carry it
+    (:func:`tightscan.scan_metadata` gives it). :func:`tightscan.results_metadata` reads it.
+
     ``passthrough`` copies input columns to the results (``True``: every non-channel column).
     The result columns (``status``, ``change_detected``, ``change_angle``, ``detectors_fired``,
     ``torque_rate``, ``mu_tot``, each detector's statistic ...) are listed with their types,
@@ -316,8 +322,9 @@ def detect_batch(
         frame: Any = result.to_pandas(types_mapper=pd.ArrowDtype)
         if not _is_long_layout(table.schema) and len(frame) == len(data):
             frame.index = data.index
+        frame.attrs["tightscan"] = scan_metadata(cfg)
         return frame
-    result = _core.detect(data, cfg, pass_cols)
+    result = with_metadata(_core.detect(data, cfg, pass_cols), scan_metadata(cfg))
     if kind == "polars":
         import polars as pl
 

@@ -14,6 +14,12 @@ def detect(
     first_row: int = 0,
 ) -> pa.Table: ...
 def flag_duplicate_ids(results: Any) -> pa.Table: ...
+def detector_traces(
+    data: Any,
+    row_number: int = 0,
+    config: dict[str, Any] | None = None,
+) -> tuple[pa.Table, dict[str, Any]]: ...
+def effective_config(config: dict[str, Any] | None = None) -> dict[str, Any]: ...
 def result_schema(
     schema: Any,
     config: dict[str, Any] | None = None,
@@ -66,6 +72,8 @@ __all__ = [
     "default_config",
     "thread_geometry",
     "detect",
+    "detector_traces",
+    "effective_config",
     "flag_duplicate_ids",
     "result_columns",
     "result_schema",

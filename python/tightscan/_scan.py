@@ -35,6 +35,7 @@ import pyarrow.parquet as pq
 from . import _core
 from ._api import _hold_back_last_tightening, _is_long_layout, _passthrough_list
 from ._progress import Progress
+from ._metadata import scan_metadata, schema_with_metadata
 from .config import ConfigLike, as_dict
 from .exceptions import DataFileError, InvalidParameterError, SchemaError
 
@@ -761,7 +762,7 @@ def _write_file_outputs(task: _FileTask, plan: _Plan, outcome: _FileOutcome) -> 
         if rel_dir not in writers:
             final = "/".join(p for p in (plan.out_dir, rel_dir, task.output) if p)
             keys = plan.partition_by or []
-            schema = pa.schema([f for f in plan.out_schema if f.name not in keys])
+            schema = pa.schema([f for f in plan.out_schema if f.name not in keys], metadata=plan.out_schema.metadata)
             writers[rel_dir] = _AtomicParquet(fs, final, schema)
         return writers[rel_dir]
 
@@ -1115,6 +1116,9 @@ def _plan_scan(
         if col not in plan.out_schema.names:
             raise InvalidParameterError(f"partition_by column {col!r} is not in the results (pass it through)", "partition_by")
     plan.scan_key = _scan_key(plan)
+    # how the results were made, in every results file's footer (after the key: the key
+    # already holds the version and the config)
+    plan.out_schema = schema_with_metadata(plan.out_schema, scan_metadata(plan.config))
 
     # Prune files whose partitions the filter excludes (the reader prunes row groups)
     if filter is not None and not isinstance(source, ds.Dataset) and len(partition_schema):

@@ -27,7 +27,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from ._api import _frame_kind, _is_long_layout
+from ._api import _is_long_layout
+from ._tables import as_arrow as _as_arrow, rows_of as _rows_of
+from .config import ConfigLike
 from .exceptions import DataFileError, InvalidParameterError, SchemaError
 
 if TYPE_CHECKING:
@@ -69,46 +71,6 @@ def _legend(ax: Axes, **kwargs: Any) -> None:
     """A legend when something is labelled (matplotlib warns on an empty one)."""
     if ax.get_legend_handles_labels()[0]:
         ax.legend(**kwargs)
-
-
-def _as_arrow(data: Any, what: str) -> pa.Table:
-    """A pyarrow Table of ``data`` (pyarrow, pandas, polars, anything with the Arrow C stream)."""
-    if isinstance(data, pa.Table):
-        return data
-    if isinstance(data, pa.RecordBatch):
-        return pa.Table.from_batches([data])
-    kind = _frame_kind(data)
-    if kind == "pandas":
-        return pa.Table.from_pandas(data, preserve_index=False)
-    if kind == "polars":
-        table: pa.Table = data.to_arrow()
-        return table
-    if kind == "polars_lazy":
-        table = data.collect().to_arrow()
-        return table
-    if hasattr(data, "__arrow_c_stream__"):
-        return pa.table(data)
-    raise TypeError(f"{what} must be an Arrow table (pyarrow, pandas, polars ...), not {type(data).__name__}")
-
-
-def _rows_of(table: pa.Table, tightening_id: Any, what: str) -> pa.Table:
-    if "tightening_id" not in table.column_names:
-        raise SchemaError(f"the {what} have no 'tightening_id' column", "tightening_id")
-    ids = table.column("tightening_id")
-    try:
-        mask = pc.equal(ids, pa.scalar(tightening_id, type=ids.type))
-    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, TypeError) as e:
-        raise InvalidParameterError(
-            f"tightening_id {tightening_id!r} does not fit the {what}' id type {ids.type}", "tightening_id"
-        ) from e
-    rows = table.filter(pc.fill_null(mask, False))
-    if rows.num_rows == 0:
-        sample = ", ".join(repr(v) for v in ids.slice(0, 5).to_pylist())
-        raise InvalidParameterError(
-            f"tightening_id {tightening_id!r} is not in the {what} ({table.num_rows} rows; ids such as {sample})",
-            "tightening_id",
-        )
-    return rows
 
 
 def tightening_curve(curves: Any, tightening_id: Any) -> dict[str, F64]:
@@ -321,147 +283,132 @@ def plot_tightening(curves: Any, results: Any, tightening_id: Any, *, ax: Axes |
     return fig
 
 
-def _window_residuals(curve: Mapping[str, F64], row: Mapping[str, Any]) -> tuple[F64, F64]:
-    """Angles and residuals from the elastic line over the elastic window (raw, unwhitened)."""
-    angle, torque = curve["angle"], curve["torque"]
-    rate, snug, prevailing = _num(row, "torque_rate"), _num(row, "snug_angle"), _num(row, "prevailing_torque")
-    e0, e1 = _num(row, "elastic_start_angle"), _num(row, "elastic_end_angle")
-    if rate is None or e0 is None or e1 is None:
-        return np.zeros(0), np.zeros(0)
-    inside = (angle >= e0) & (angle <= e1)
-    a, t = angle[inside], torque[inside]
-    if snug is not None and prevailing is not None:
-        fitted = prevailing + rate * (a - snug)
-    else:
-        fitted = np.full_like(a, np.nan)
-    resid = t - fitted
-    if len(resid):  # the line is the engine's; its level is refitted so the residuals centre on 0
-        resid = resid - np.nanmedian(resid)
-    return a, resid
+def _onset(ax: Axes, row: Mapping[str, Any]) -> None:
+    """The detected change's onset, as the results report it, on a panel over angle."""
+    onset = _num(row, "change_angle")
+    if row.get("change_detected") and onset is not None:
+        ax.axvline(onset, color="k", ls="--", lw=1.2, label=f"detected onset {onset:.1f} deg", gid="change_onset")
 
 
-def plot_detectors(curves: Any, results: Any, tightening_id: Any) -> Figure:
-    """What each detector saw in one tightening, four panels.
+def _not_run(ax: Axes, what: str, status: str) -> None:
+    ax.text(0.5, 0.5, f"{what} did not run on this tightening\n(status: {status})", ha="center", va="center", transform=ax.transAxes, fontsize=8, gid="not_run")
+    ax.set_xticks([])
+    ax.set_yticks([])
 
-    1. Each detector's statistic against its limit, on one scale (1 = the limit): CUSUM's
-       largest statistic over ``cusum_threshold`` h, the L1 monitoring's largest
-       sqrt(statistic) / boundary (``l1_max_ratio``; its gamma-boundary is 1 on this scale), the
-       break scan's sup-LR over its critical value; the raw values and whether the detector
-       alarmed are written on the bars. The break scan decides on its p-value, which allows for
-       the uncertainty of the noise model on a whitened window, and also on its end test, so its
-       bar can pass 1 without an alarm, or alarm below 1.
-    2. The residuals of the elastic line over the elastic window, with the tested window and
-       where each detector placed its alarm and its change start.
-    3. Block torque rates (the raw curve cut into blocks of ``cusum_block_angle``) against the
-       CUSUM's reference rate, with the CUSUM alarm and change start.
-    4. Kernel densities of the line residuals before and after the change (``kde_change_angle``,
-       else ``change_angle``, else the middle of the tested window), with the KDE test's
-       p-value when it ran.
 
-    Not drawn: the per-sample CUSUM path, the L1 detector and boundary paths and the break
-    scan's LR profile over the split points. The engine computes them inside Rust on the
-    whitened window (AR noise model, stop samples left out, weights), and does not return
-    them; a Python recomputation from the raw curve would not be the statistic the decision
-    used, so the panels show the engine's reported extremes against their limits, and panels
-    2 to 4 are of the raw (unwhitened) curve.
+def plot_detectors(curves: Any, results: Any, tightening_id: Any, *, config: ConfigLike = None) -> Figure:
+    """What each detector computed along one tightening, four panels, from the engine's own
+    traces (:func:`tightscan.detector_traces`: the statistics the decision used, on the
+    whitened window with its noise model, not a recomputation from the raw curve).
+
+    1. CUSUM: the upper and lower paths S+ and S- over the monitored blocks' angles, with the
+       threshold h; an alarm where a path first exceeds it.
+    2. L1 monitoring: the statistic |Q(m, k)| with its gamma boundary
+       g(m, k, gamma) = c sqrt(m) (1 + k/m) (k/(m+k))^gamma; an alarm where it first reaches it.
+    3. Break scan: the likelihood-ratio profile over the candidate break points with its
+       critical value (and, where the noise model's uncertainty raises it, the level the scan
+       decides on), and the split at its maximum.
+    4. Kernel densities of the line residuals: the reference before and the part after it
+       that the kernel-density test found most different.
+
+    Panels 1 to 3 mark the detected onset (``change_angle`` of the results) and each
+    detector's alarm. The traces are computed with ``config``; by default the configuration
+    the results record (:func:`tightscan.results_metadata`), else the defaults: give the
+    config the results were made with, or the traces are of another analysis.
+
+    >>> import tightscan
+    >>> curves, _ = tightscan.simulate(5, seed=3)
+    >>> fig = plot_detectors(curves, tightscan.detect_batch(curves), 1)
+    >>> [ax.get_title(loc="left") for ax in fig.axes]
+    ['CUSUM', 'L1 monitoring', 'break scan', 'residual densities']
     """
-    curve = tightening_curve(curves, tightening_id)
+    from ._metadata import results_metadata
+    from .traces import detector_traces
+
     row = result_row(results, tightening_id)
+    if config is None:
+        recorded = results_metadata(results)
+        config = recorded.get("config") if recorded else None
+    traces = detector_traces(curves, tightening_id, config)
+    status = traces.status
     fig = _new_figure(11.0, 7.0)
-    (ax_lim, ax_res), (ax_blk, ax_kde) = fig.subplots(2, 2)
+    (ax_cusum, ax_l1), (ax_break, ax_kde) = fig.subplots(2, 2)
 
-    # 1. statistics against their limits
-    bars: list[tuple[str, float, str]] = []
-    cmax, h = _num(row, "cusum_max_statistic"), _num(row, "cusum_threshold")
-    if cmax is not None and h:
-        bars.append(("cusum", cmax / h, f"{cmax:.3g} / h {h:.3g}"))
-    l1 = _num(row, "l1_max_ratio")
-    if l1 is not None:
-        bars.append(("l1", l1, f"ratio {l1:.3g} (gamma {_num(row, 'l1_gamma') or float('nan'):.2g})"))
-    b, bc = _num(row, "break_statistic"), _num(row, "break_critical_value")
-    if b is not None and bc:
-        bars.append(("break", b / bc, f"sup-LR {b:.3g} / {bc:.3g}"))
-    if bars:
-        names = [x[0] for x in bars]
-        values = [x[1] for x in bars]
-        ax_lim.barh(names, values, color=[DETECTOR_COLOURS[n] for n in names], gid="statistic_bars")
-        for i, (name, v, text) in enumerate(bars):
-            verdict = "alarm" if row.get(f"{name}_alarm") else "no alarm"
-            ax_lim.text(v, i, f" {text}: {verdict}", va="center", fontsize=7, gid=f"bar_text:{name}")
-        ax_lim.set_xscale("symlog", linthresh=1.0)
-        ax_lim.set_xlim(0, max(2.0, 8.0 * max(values)))
-    ax_lim.axvline(1.0, color="k", ls="--", lw=1, label="limit (threshold, boundary, critical value)", gid="limit")
-    ax_lim.set_xlabel("statistic / its limit")
-    kde_p = _num(row, "kde_p_value")
-    ax_lim.set_title("detectors against their limits" + (f"; KDE p = {kde_p:.3g}" if kde_p is not None else ""), fontsize=9)
-    _legend(ax_lim, fontsize=7, loc="lower right")
-
-    # 2. residuals of the elastic line
-    a, r = _window_residuals(curve, row)
-    ts, te = _num(row, "tested_start_angle"), _num(row, "tested_end_angle")
-    if ts is not None and te is not None:
-        ax_res.axvspan(ts, te, color=_PHASE_COLOURS["elastic window"], lw=0, zorder=0, label="tested samples")
-    ax_res.plot(a, r, color="k", lw=0.7, label="torque - elastic line", gid="residual")
-    ax_res.axhline(0, color="tab:blue", lw=0.8)
-    for det in ("break", "cusum", "l1", "kde", "shewhart"):
-        if not row.get(f"{det}_alarm"):
-            continue
-        for key, ls in ((f"{det}_change_angle", "--"), (f"{det}_alarm_angle", ":")):
-            mark = _num(row, key)
-            if mark is not None:
-                ax_res.axvline(mark, color=DETECTOR_COLOURS[det], ls=ls, lw=1.2, label=f"{det} {'change' if ls == '--' else 'alarm'}", gid=f"{key}")
-    ax_res.set_xlabel("angle [deg]")
-    ax_res.set_ylabel("residual [Nm]")
-    ax_res.set_title("elastic line residuals (raw curve)", fontsize=9)
-    _legend(ax_res, fontsize=7)
-
-    # 3. block torque rates against the CUSUM reference
-    width, ref = _num(row, "cusum_block_angle"), _num(row, "cusum_reference_rate")
-    e0, e1 = _num(row, "elastic_start_angle"), _num(row, "elastic_end_angle")
-    start = ts if ts is not None else e0
-    end = te if te is not None else e1
-    if width and start is not None and end is not None and end > start:
-        edges = np.arange(start, end + 1e-9, width)
-        mids, rates = [], []
-        for lo, hi in zip(edges[:-1], edges[1:]):
-            m = (curve["angle"] >= lo) & (curve["angle"] < hi)
-            if m.sum() >= 3 and np.ptp(curve["angle"][m]) > 0:
-                mids.append((lo + hi) / 2)
-                rates.append(float(np.polyfit(curve["angle"][m], curve["torque"][m], 1)[0]))
-        ax_blk.plot(mids, rates, "o-", ms=3, color="tab:purple", lw=0.8, label="block torque rate", gid="block_rates")
-    if ref is not None:
-        ax_blk.axhline(ref, color="k", ls="--", lw=1, label=f"CUSUM reference {ref:.4g} Nm/deg", gid="cusum_reference")
-    for key, ls, what in (("cusum_change_angle", "--", "change start"), ("cusum_alarm_angle", ":", "alarm")):
-        mark = _num(row, key)
-        if mark is not None and row.get("cusum_alarm"):
-            ax_blk.axvline(mark, color="tab:purple", ls=ls, lw=1.2, label=f"CUSUM {what}", gid=key)
-    side = row.get("cusum_side")
-    if cmax is not None and h is not None:
-        ax_blk.set_title(f"CUSUM: max {cmax:.3g} sigma, h = {h:.3g}" + (f", {side}" if side else ""), fontsize=9)
+    # 1. CUSUM paths and threshold
+    ax_cusum.set_title("CUSUM", loc="left", fontsize=9)
+    c = traces.cusum
+    if c is not None and len(c.angle):
+        ax_cusum.plot(c.angle, c.upper, ".-", ms=3, lw=0.9, color=DETECTOR_COLOURS["cusum"], label="S+ (rate up)", gid="cusum:upper")
+        ax_cusum.plot(c.angle, c.lower, ".-", ms=3, lw=0.9, color="tab:cyan", label="S- (rate down)", gid="cusum:lower")
+        ax_cusum.axhline(c.threshold, color="k", ls=":", lw=1, label=f"threshold h = {c.threshold:.3g}", gid="cusum:threshold")
+        alarm = _num(row, "cusum_alarm_angle")
+        if row.get("cusum_alarm") and alarm is not None:
+            ax_cusum.axvline(alarm, color=DETECTOR_COLOURS["cusum"], ls=":", lw=1.2, label=f"alarm {alarm:.1f} deg", gid="cusum_alarm_angle")
+        _onset(ax_cusum, row)
+        ax_cusum.set_xlabel("angle [deg]")
+        ax_cusum.set_ylabel("statistic [sigma]")
+        ax_cusum.set_title(f"kappa {c.kappa:.3g}; max {max(float(np.max(c.upper)), float(np.max(c.lower))):.3g}", loc="right", fontsize=8)
+        _legend(ax_cusum, fontsize=7)
     else:
-        ax_blk.set_title("CUSUM did not run on this tightening (window too short?)", fontsize=9)
-    ax_blk.set_xlabel("angle [deg]")
-    ax_blk.set_ylabel("torque rate [Nm/deg]")
-    _legend(ax_blk, fontsize=7)
+        _not_run(ax_cusum, "the CUSUM", status)
+
+    # 2. L1 statistic and gamma boundary
+    ax_l1.set_title("L1 monitoring", loc="left", fontsize=9)
+    m = traces.l1
+    if m is not None and len(m.angle):
+        ax_l1.plot(m.angle, m.statistic, ".-", ms=3, lw=0.9, color=DETECTOR_COLOURS["l1"], label="|Q(m, k)|", gid="l1:statistic")
+        ax_l1.plot(m.angle, m.boundary, color="k", ls=":", lw=1, label=f"boundary g(m, k, {m.gamma:.2g}), c = {m.critical_value:.3g}", gid="l1:boundary")
+        alarm = _num(row, "l1_alarm_angle")
+        if alarm is not None:
+            ax_l1.axvline(alarm, color=DETECTOR_COLOURS["l1"], ls=":", lw=1.2, label=f"alarm {alarm:.1f} deg", gid="l1_alarm_angle")
+        _onset(ax_l1, row)
+        ax_l1.set_xlabel("angle [deg]")
+        ax_l1.set_ylabel("cumulated signs")
+        ax_l1.set_title(f"m = {m.training} training blocks", loc="right", fontsize=8)
+        _legend(ax_l1, fontsize=7)
+    else:
+        _not_run(ax_l1, "L1 monitoring", status)
+
+    # 3. break scan's LR profile
+    ax_break.set_title("break scan", loc="left", fontsize=9)
+    b = traces.breaks
+    if b is not None and len(b.angle):
+        ax_break.plot(b.angle, b.lr, lw=0.9, color=DETECTOR_COLOURS["break"], label="LR over the split point", gid="break:lr")
+        ax_break.axhline(b.critical_value, color="k", ls=":", lw=1, label=f"critical value {b.critical_value:.3g}", gid="break:critical_value")
+        if b.decision_value > b.critical_value * (1 + 1e-9):
+            ax_break.axhline(b.decision_value, color="k", ls="-.", lw=1, label=f"with the noise model's uncertainty {b.decision_value:.3g}", gid="break:decision_value")
+        top = int(np.argmax(b.lr))
+        ax_break.plot([b.angle[top]], [b.lr[top]], "v", color=DETECTOR_COLOURS["break"], ms=7, label=f"maximum at {b.angle[top]:.1f} deg", gid="break:split")
+        _onset(ax_break, row)
+        ax_break.set_xlabel("angle [deg]")
+        ax_break.set_ylabel("likelihood ratio")
+        verdict = "alarm" if b.scan_alarm else "significant, within an encoder step" if b.significant else "no alarm"
+        ax_break.set_title(verdict + ("; end test: alarm" if b.tail_alarm else ""), loc="right", fontsize=8)
+        _legend(ax_break, fontsize=7)
+    else:
+        _not_run(ax_break, "the break scan", status)
 
     # 4. densities before and after
-    split = _num(row, "kde_change_angle") or _num(row, "change_angle")
-    if split is None and ts is not None and te is not None:
-        split = (ts + te) / 2
-    if split is not None and len(r):
-        from scipy.stats import gaussian_kde
+    ax_kde.set_title("residual densities", loc="left", fontsize=9)
+    k = traces.kde
+    if k is not None:
+        (b0, b1), (a0, a1) = k.before_angles, k.after_angles
+        ax_kde.plot(k.grid, k.before, color="tab:blue", label=f"reference {b0:.1f}-{b1:.1f} deg", gid="kde:before")
+        ax_kde.plot(k.grid, k.after, color="tab:red", label=f"{'most different' if k.tested else 'after'} {a0:.1f}-{a1:.1f} deg", gid="kde:after")
+        ax_kde.set_xlabel("whitened residual [Nm]")
+        ax_kde.set_ylabel("density")
+        kde_p = _num(row, "kde_p_value")
+        note = f"KDE test p = {kde_p:.3g}" if k.tested and kde_p is not None else "KDE test off (kde=True runs it)"
+        ax_kde.set_title(f"{note}; bandwidth {k.bandwidth:.3g}", loc="right", fontsize=8)
+        _legend(ax_kde, fontsize=7)
+    else:
+        _not_run(ax_kde, "the residual densities", status)
 
-        for part, colour, name in ((r[a < split], "tab:blue", "before"), (r[a >= split], "tab:red", "after")):
-            part = part[np.isfinite(part)]
-            if len(part) >= 5 and np.ptp(part) > 0:
-                grid = np.linspace(float(np.min(r)), float(np.max(r)), 200)
-                ax_kde.plot(grid, gaussian_kde(part)(grid), color=colour, label=f"{name} {split:.1f} deg ({len(part)} samples)", gid=f"kde:{name}")
-    ax_kde.set_xlabel("residual [Nm]")
-    ax_kde.set_ylabel("density")
-    kstat = _num(row, "kde_statistic")
-    ax_kde.set_title("residual densities" + (f": KDE statistic {kstat:.3g}, p {kde_p:.3g}" if kstat is not None and kde_p is not None else " (KDE test off)"), fontsize=9)
-    _legend(ax_kde, fontsize=7)
-    fig.suptitle(f"tightening {tightening_id}: detectors fired: {', '.join(_fired(row)) or 'none'}", fontsize=10)
+    fired = ", ".join(_fired(row)) or "none"
+    title = f"tightening {tightening_id}: detectors fired: {fired}"
+    if traces.result.get("change_detected") != row.get("change_detected"):
+        title += " (these traces decide otherwise: the results were made with another config)"
+    fig.suptitle(title, fontsize=10)
     return fig
 
 

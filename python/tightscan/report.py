@@ -28,6 +28,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from . import _core
+from ._metadata import RESULTS_METADATA_KEY, results_metadata
 from ._scan import MANIFEST_DIR, read_results
 from .exceptions import DataFileError, SchemaError
 
@@ -56,9 +57,9 @@ def _figure_uri(fig: Figure, dpi: int = 80) -> str:
 
 
 def _as_table(data: Any, what: str) -> pa.Table:
-    from .plot import _as_arrow
+    from ._tables import as_arrow
 
-    return _as_arrow(data, what)
+    return as_arrow(data, what)
 
 
 def _fmt(v: Any, digits: int = 4) -> str:
@@ -179,7 +180,7 @@ def _metadata(path: PathLike | None) -> tuple[list[tuple[str, str]], list[dict[s
             continue
         for k, v in kv.items():
             key = k.decode(errors="replace")
-            if key in ("ARROW:schema", "pandas"):
+            if key in ("ARROW:schema", "pandas", RESULTS_METADATA_KEY.decode()):  # the record has its own tables
                 continue
             text = v.decode(errors="replace")
             try:
@@ -194,6 +195,32 @@ def _metadata(path: PathLike | None) -> tuple[list[tuple[str, str]], list[dict[s
             except (OSError, ValueError):
                 continue
     return meta, manifests
+
+
+def _recorded(table: pa.Table, source: PathLike | None) -> dict[str, Any] | None:
+    """How the results were made, as they record it (:func:`tightscan.results_metadata`), laid
+    out for the report; None for results that record nothing."""
+    record = results_metadata(table) or (results_metadata(source) if source is not None else None)
+    if record is None:
+        return None
+
+    def text(value: Any, rounded: bool = False) -> str:
+        if isinstance(value, (list, tuple)):
+            return ", ".join(json.dumps(v) if isinstance(v, dict) else str(v) for v in value)
+        if value is None:
+            return "unset"
+        return _fmt(value) if rounded and isinstance(value, float) else str(value)
+
+    config = record.get("config") or {}
+    return {
+        "version": str(record.get("version", "?")),
+        "alpha": text(record.get("alpha")),
+        "rule": text(record.get("rule")),
+        "detectors": text(record.get("detectors")),
+        "shares": [(k, text(v, rounded=True)) for k, v in (record.get("shares") or {}).items()],
+        "derived": [(k, text(v, rounded=True)) for k, v in (record.get("derived") or {}).items()],
+        "config": [(k, text(config[k])) for k in sorted(config)],
+    }
 
 
 def _guess_groups(results: pa.Table) -> list[str]:
@@ -389,6 +416,7 @@ def render_report(
         detectors=_detector_counts(table),
         levels=_levels(table),
         defaults=_defaults(),
+        recorded=_recorded(table, source),
         metadata=meta,
         manifests=[
             {"input": m.get("input"), "outputs": ", ".join(m.get("outputs") or []), "scan_key": str(m.get("scan_key", ""))[:16], "stats": m.get("stats", {})}

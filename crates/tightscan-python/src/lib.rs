@@ -40,6 +40,104 @@ fn detect<'py>(
     PyTable::try_new(batches, schema)?.into_pyarrow(py)
 }
 
+/// What each detector computed along the one tightening of `data` (`Detector::traces`): its
+/// result row as a pyarrow Table and a dict of the traces (`cusum`, `l1`, `breaks`, `kde`;
+/// None for a detector that did not run), each a dict of lists and numbers. `row_number` is
+/// the tightening's row in the table `detect` is given.
+#[pyfunction]
+#[pyo3(signature = (data, row_number=0, config=None))]
+fn detector_traces<'py>(
+    py: Python<'py>,
+    data: AnyRecordBatch,
+    row_number: usize,
+    config: Option<&Bound<'py, PyDict>>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyDict>)> {
+    let detector = Detector::new(config::detect_config(config)?).map_err(|e| to_py_err(py, e))?;
+    let reader = data.into_reader()?;
+    let input_schema = reader.schema();
+    let (row, traces) = detached(py, move || {
+        let batches = reader.collect::<Result<Vec<RecordBatch>, _>>()?;
+        Ok(detector.traces(&input_schema, &batches, row_number)?)
+    })?;
+    let schema = row.schema();
+    let table = PyTable::try_new(vec![row], schema)?.into_pyarrow(py)?;
+    let d = PyDict::new(py);
+    let cusum = traces.cusum.map(|t| -> PyResult<_> {
+        let c = PyDict::new(py);
+        c.set_item("angle", t.angle)?;
+        c.set_item("z", t.z)?;
+        c.set_item("upper", t.upper)?;
+        c.set_item("lower", t.lower)?;
+        c.set_item("threshold", t.threshold)?;
+        c.set_item("kappa", t.kappa)?;
+        Ok(c)
+    });
+    d.set_item("cusum", cusum.transpose()?)?;
+    let l1 = traces.l1.map(|t| -> PyResult<_> {
+        let c = PyDict::new(py);
+        c.set_item("angle", t.angle)?;
+        c.set_item("statistic", t.statistic)?;
+        c.set_item("boundary", t.boundary)?;
+        c.set_item("critical_value", t.critical_value)?;
+        c.set_item("gamma", t.gamma)?;
+        c.set_item("training", t.training)?;
+        Ok(c)
+    });
+    d.set_item("l1", l1.transpose()?)?;
+    let breaks = traces.breaks.map(|t| -> PyResult<_> {
+        let c = PyDict::new(py);
+        c.set_item("angle", t.angle)?;
+        c.set_item("lr", t.lr)?;
+        c.set_item("critical_value", t.critical_value)?;
+        c.set_item("decision_value", t.decision_value)?;
+        c.set_item("significant", t.significant)?;
+        c.set_item("scan_alarm", t.scan_alarm)?;
+        c.set_item("tail_alarm", t.tail_alarm)?;
+        Ok(c)
+    });
+    d.set_item("breaks", breaks.transpose()?)?;
+    let kde = traces.kde.map(|t| -> PyResult<_> {
+        let c = PyDict::new(py);
+        c.set_item("grid", t.grid)?;
+        c.set_item("before", t.before)?;
+        c.set_item("after", t.after)?;
+        c.set_item("bandwidth", t.bandwidth)?;
+        c.set_item("before_angles", t.before_angles)?;
+        c.set_item("after_angles", t.after_angles)?;
+        c.set_item("tested", t.tested)?;
+        Ok(c)
+    });
+    d.set_item("kde", kde.transpose()?)?;
+    Ok((table, d))
+}
+
+/// The configuration `detect` runs with for `config`: every parameter (defaults filled in) as
+/// the flat dict `detect` reads, and what the engine derives from them: the CUSUM threshold,
+/// each detector's false-alarm probability (its share of the rule's alpha unless set), the L1
+/// boundary's critical value. Raises as `detect` would for an invalid config.
+#[pyfunction]
+#[pyo3(signature = (config=None))]
+fn effective_config<'py>(py: Python<'py>, config: Option<&Bound<'py, PyDict>>) -> PyResult<Bound<'py, PyDict>> {
+    let detector = Detector::new(config::detect_config(config)?).map_err(|e| to_py_err(py, e))?;
+    let d = PyDict::new(py);
+    d.set_item("config", config::detect_config_to_dict(py, detector.config())?)?;
+    let derived = PyDict::new(py);
+    derived.set_item("cusum_threshold", detector.threshold())?;
+    derived.set_item("break_alpha", detector.break_alpha())?;
+    let (l1_alpha, l1_critical_value) = detector.l1_alpha();
+    derived.set_item("l1_alpha", l1_alpha)?;
+    derived.set_item("l1_critical_value", l1_critical_value)?;
+    derived.set_item("kde_alpha", detector.kde_alpha())?;
+    d.set_item("derived", derived)?;
+    let decision = &detector.config().decision;
+    let shares = PyDict::new(py);
+    for kind in &decision.detectors {
+        shares.set_item(kind.as_str(), decision.share(*kind))?;
+    }
+    d.set_item("shares", shares)?;
+    Ok(d)
+}
+
 /// Flags repeated `tightening_id`s across all rows of a results table (`detect` flags within
 /// the table it is given; a table analysed in pieces is flagged whole here).
 #[pyfunction]
@@ -252,6 +350,8 @@ fn result_columns() -> Vec<(&'static str, String, &'static str, &'static str)> {
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(detect, m)?)?;
     m.add_function(wrap_pyfunction!(result_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(detector_traces, m)?)?;
+    m.add_function(wrap_pyfunction!(effective_config, m)?)?;
     m.add_function(wrap_pyfunction!(flag_duplicate_ids, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(thread_geometry, m)?)?;

@@ -113,6 +113,24 @@ impl Sums {
 /// centred near zero (window coordinates) so the sums do not cancel. `prefix` is scratch.
 /// Returns `None` when there is no admissible split or no residual variance.
 pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f64, f64, f64, f64, f64)>) -> Option<BreakScan> {
+    sup_lr_scan_profile(x, y, min_segment, prefix, None)
+}
+
+/// `LR = n ln(RSS_0 / RSS)` of a split whose two lines leave `rss` (noise-free splits, rss = 0,
+/// would give an infinite statistic: floored at 1e-300 of `rss0`).
+fn likelihood_ratio(n: usize, rss0: f64, rss: f64) -> f64 {
+    n as f64 * (rss0 / rss.max(1e-300 * rss0)).ln()
+}
+
+/// [`sup_lr_scan`], and with `profile` the statistic of every split it scanned, in order (the
+/// first at `min_segment`; `LR_k` as in the module docs), for plots of the scan.
+pub fn sup_lr_scan_profile(
+    x: &[f64],
+    y: &[f64],
+    min_segment: usize,
+    prefix: &mut Vec<(f64, f64, f64, f64, f64)>,
+    mut profile: Option<&mut Vec<f64>>,
+) -> Option<BreakScan> {
     let n = x.len();
     let min_segment = min_segment.max(3);
     if n < 2 * min_segment || y.len() != n {
@@ -133,6 +151,9 @@ pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f
         let (_, _, rl) = left.fit();
         let (_, _, rr) = right.fit();
         let rss = rl + rr;
+        if let Some(p) = profile.as_deref_mut() {
+            p.push(likelihood_ratio(n, rss0, rss));
+        }
         if rss < best_rss {
             best_rss = rss;
             let (al, bl, _) = left.fit();
@@ -146,8 +167,7 @@ pub fn sup_lr_scan(x: &[f64], y: &[f64], min_segment: usize, prefix: &mut Vec<(f
         }
     }
     let mut b = best?;
-    // Noise-free splits (rss = 0) would give an infinite statistic: floor at 1e-300.
-    b.statistic = n as f64 * (rss0 / best_rss.max(1e-300 * rss0)).ln();
+    b.statistic = likelihood_ratio(n, rss0, best_rss);
     Some(b)
 }
 
@@ -182,9 +202,8 @@ pub struct TailTest {
 ///
 /// `gain_log_se`: the standard error of the whitening filter's log gain, as for
 /// [`sup_lr_predictive_p_value`]; each tail's p-value is averaged over it (0: the exact F tail).
-/// Without it, the start test (this test on the window read backwards) alarmed on 0.33 % of
-/// clean independent-generator curves under AR(1) noise with phi 0.9 at p <= 0.001 (nominal
-/// at most 0.1 %), and its p-values were too small across their whole range.
+/// The engine's start test (this test on the window read backwards) uses it; see
+/// `engine/analysis/breaks.rs` for why its end test does not.
 pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, gain_log_se: f64, prefix: &mut Vec<(f64, f64, f64, f64, f64)>) -> Option<TailTest> {
     use statrs::distribution::{ContinuousCDF, FisherSnedecor};
     let n = x.len();

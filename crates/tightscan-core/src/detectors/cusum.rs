@@ -296,6 +296,11 @@ impl TwoSidedCusum {
         self.s_pos.max(self.s_neg)
     }
 
+    /// Current values of the two sides, (S+, S-).
+    pub fn sides(&self) -> (f64, f64) {
+        (self.s_pos, self.s_neg)
+    }
+
     /// Largest value either side has reached so far.
     pub fn max_statistic(&self) -> f64 {
         self.max_statistic

@@ -329,6 +329,17 @@ fn binned_parts_with(
     }
 }
 
+/// The Gaussian kernel density estimate of `sample` with bandwidth `h` at each point of `at`:
+/// the densities whose L2 distance the test statistic is (for plots of what it compared).
+/// Empty when `sample` is empty or `h` is not positive.
+pub fn kde_density(sample: &[f64], h: f64, at: &[f64]) -> Vec<f64> {
+    if sample.is_empty() || !(h.is_finite() && h > 0.0) {
+        return Vec::new();
+    }
+    let n = sample.len() as f64;
+    at.iter().map(|&u| sample.iter().map(|&v| normal_density(u - v, h)).sum::<f64>() / n).collect()
+}
+
 /// Normal density of scale `sigma` at `u`.
 fn normal_density(u: f64, sigma: f64) -> f64 {
     let z = u / sigma;

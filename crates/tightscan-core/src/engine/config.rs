@@ -60,9 +60,12 @@ pub struct BreakConfig {
 
 impl Default for BreakConfig {
     fn default() -> Self {
-        // A tenth is plenty: the tail test is there for changes whose last samples deviate by
-        // tens of noise sd (a friction rise that makes the tool stop at once), which it finds at
-        // any alpha; the scan's power on small mid-window changes is worth the rest.
+        // A twentieth each is plenty: the end test is there for changes whose last samples
+        // deviate by tens of noise sd (a friction rise that makes the tool stop at once), which
+        // it finds at any alpha; the scan's power on small mid-window changes is worth the rest.
+        // (With a tenth each the scan kept 80 %, and the rule's pooled size over the built-in
+        // simulator's noise grid fell to 0.69 %, below 0.7 x alpha; with a twentieth each, 90 %
+        // as before the start test, 0.70 %, at the same recall: benches/size_grid.py --quick.)
         // 1.5 steps: at 1.0 the credited false alarms of clean constant-speed curves still had
         // jumps of 1.1-1.5 steps (median 1.24; 178 in 20,000 CST curves), enough to lift the
         // union bound above its nominal rate at small alpha (1.36 x at 0.005). At 1.5 the union
@@ -74,7 +77,7 @@ impl Default for BreakConfig {
         // rise), which the scan, held ten samples from the window's start, credits to its
         // first admissible split with a poor fit. On the independent generator (CST and HDT,
         // abrupt 15-45 %) 14 of 21 missed changes lay within those first samples.
-        Self { alpha: None, min_jump_steps: 1.5, tail_fraction: 0.1, head_fraction: 0.1 }
+        Self { alpha: None, min_jump_steps: 1.5, tail_fraction: 0.05, head_fraction: 0.05 }
     }
 }
 

@@ -15,6 +15,9 @@ mod rows;
 pub mod schema;
 pub mod status;
 #[cfg(test)]
+mod trace_tests;
+pub mod traces;
+#[cfg(test)]
 mod tests;
 
 use std::sync::Arc;
@@ -37,6 +40,7 @@ use status::TighteningStatus;
 
 pub use config::{BreakConfig, CusumConfig, DetectConfig, FrictionConfig, L1Config, ResidualTestConfig};
 pub use decision::{DecisionConfig, DecisionRule, DetectorKind};
+pub use traces::{BreakTrace, CusumTrace, DetectorTraces, KdeTrace, L1Trace};
 
 /// Validated configuration plus the threshold it implies.
 #[derive(Clone, Debug)]
@@ -200,6 +204,21 @@ impl Detector {
         self.threshold
     }
 
+    /// False-alarm probability per tightening of the break detector (scan and end test).
+    pub fn break_alpha(&self) -> f64 {
+        self.break_alpha
+    }
+
+    /// False-alarm probability of the L1 monitoring, and its boundary's critical value c.
+    pub fn l1_alpha(&self) -> (f64, f64) {
+        (self.l1_alpha, self.l1_critical_value)
+    }
+
+    /// False-alarm probability of the kernel-density test.
+    pub fn kde_alpha(&self) -> f64 {
+        self.kde_alpha
+    }
+
     /// Schema of the results for an input schema.
     pub fn result_schema(&self, input: &Schema, passthrough: &[String]) -> Result<SchemaRef> {
         schema::detect_layout(input)?;
@@ -241,7 +260,7 @@ impl Detector {
                 if null_id_row(i) {
                     return RowResult::failed(TighteningStatus::NullTightening, 0);
                 }
-                let mut row = self.analyse_row(&table, i, scratch);
+                let mut row = self.analyse_row(&table, i, i, scratch);
                 row.decision = self.decide(&row);
                 self.settle_status(&mut row);
                 row
@@ -258,6 +277,48 @@ impl Detector {
             columns.push(owned_copy(col)?);
         }
         Ok(RecordBatch::try_new(out_schema, columns)?)
+    }
+
+    /// What each detector computed along one tightening ([`traces`]), with its result row:
+    /// `batch` holds exactly one tightening (nested or long layout), analysed by the very steps
+    /// [`Detector::detect`] runs, with the same window, noise model, standardisation and
+    /// thresholds. `row_number` is its row in the table `detect` would be given: it numbers
+    /// the row when the table has no `tightening_id` and seeds the kernel-density test's
+    /// permutations as `detect` does, so the trace's result row equals `detect`'s. A tightening
+    /// that cannot be analysed gets its status in the row and no traces.
+    /// The table may come as several batches (`input_schema` theirs).
+    pub fn traces(&self, input_schema: &SchemaRef, batches: &[RecordBatch], row_number: usize) -> Result<(RecordBatch, DetectorTraces)> {
+        let batch = &concat_batches(input_schema, batches)?;
+        let input_schema = batch.schema();
+        let layout = schema::detect_layout(&input_schema)?;
+        let out_schema = self.result_schema(&input_schema, &[])?;
+        let nested = to_nested(batch, &[])?;
+        if nested.num_rows() != 1 {
+            return Err(TightscanError::parameter(
+                "tightening",
+                format!("traces are of one tightening; the table holds {}", nested.num_rows()),
+            ));
+        }
+        let table = TighteningTable::new(&nested)?;
+        let ids: ArrayRef = match nested.column_by_name(TIGHTENING_ID) {
+            Some(ids) => owned_copy(ids)?,
+            None => Arc::new(Int64Array::from_iter_values([row_number as i64])),
+        };
+        let mut scratch = Scratch::default();
+        scratch.trace = Some(Box::default());
+        let mut row = if layout == Layout::Long && ids.is_null(0) {
+            RowResult::failed(TighteningStatus::NullTightening, 0)
+        } else {
+            self.analyse_row(&table, 0, row_number, &mut scratch)
+        };
+        row.decision = self.decide(&row);
+        self.settle_status(&mut row);
+        let mut columns: Vec<ArrayRef> = vec![ids];
+        columns.extend(build_columns(std::slice::from_ref(&row)));
+        let result = RecordBatch::try_new(out_schema, columns)?;
+        // A status that is not ok (too short, flat, misfit ...) keeps whatever ran before it
+        // failed: its traces are what the row's statistics came from.
+        Ok((result, scratch.trace.map(|t| *t).unwrap_or_default()))
     }
 
     /// Analyses a whole table given as batches. A long-layout table is concatenated first, so

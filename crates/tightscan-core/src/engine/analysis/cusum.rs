@@ -6,6 +6,7 @@ use crate::detectors::cusum::TwoSidedCusum;
 use crate::engine::input::Sample;
 use crate::engine::rows::{CusumAlarmRow, CusumRow};
 use crate::engine::status::TighteningStatus;
+use crate::engine::traces::CusumTrace;
 use crate::engine::Detector;
 use crate::physics::torque_rate::{block_count, block_stats_whitened, ElasticWindow, PooledFit};
 
@@ -162,20 +163,36 @@ impl Detector {
         s.z.clear();
         s.z.extend(monitor.iter().map(|&b| z_of(b) / (inflate * predictive)));
         let mut cusum = TwoSidedCusum::new(cfg.cusum.kappa, self.threshold);
-        for &z in &s.z {
+        // The sample where monitored block j's evidence is complete: its last.
+        let block_end = |j: usize| s.index[blocks.stats[monitor[j]].last + lag];
+        let mut trace = s.trace.is_some().then(|| CusumTrace {
+            threshold: self.threshold,
+            kappa: cfg.cusum.kappa,
+            ..CusumTrace::default()
+        });
+        for (j, &z) in s.z.iter().enumerate() {
             cusum.update(z);
+            if let Some(t) = trace.as_mut() {
+                let (upper, lower) = cusum.sides();
+                t.angle.push(angle[block_end(j)].to_f64());
+                t.z.push(z);
+                t.upper.push(upper);
+                t.lower.push(lower);
+            }
         }
         let alarm = cusum.alarm().map(|a| {
-            let alarm_block = &blocks.stats[monitor[a.alarm_step]];
             let change_block = &blocks.stats[monitor[a.change_step]];
             CusumAlarmRow {
-                alarm_index: s.index[alarm_block.last + lag],
-                alarm_angle: angle[s.index[alarm_block.last + lag]].to_f64(),
+                alarm_index: block_end(a.alarm_step),
+                alarm_angle: angle[block_end(a.alarm_step)].to_f64(),
                 side: a.side,
                 change_index: s.index[change_block.first + lag],
                 change_angle: angle[s.index[change_block.first + lag]].to_f64(),
             }
         });
+        if let (Some(traces), Some(t)) = (s.trace.as_deref_mut(), trace) {
+            traces.cusum = Some(t);
+        }
         Ok(CusumRow {
             alarm,
             max_statistic: cusum.max_statistic(),

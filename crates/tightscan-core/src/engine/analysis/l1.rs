@@ -4,6 +4,7 @@
 use crate::detectors::monitor::{monitor_l1, L1MonitorConfig};
 use crate::engine::input::Sample;
 use crate::engine::rows::L1Row;
+use crate::engine::traces::L1Trace;
 use crate::engine::Detector;
 
 use super::Scratch;
@@ -79,14 +80,29 @@ impl Detector {
             gamma: self.config.l1.gamma,
             alpha: self.l1_alpha,
             critical_value: Some(self.l1_critical_value),
+            keep_path: s.trace.is_some(),
             ..L1MonitorConfig::new(training)
         };
         let result = monitor_l1(&[], &s.regressor, &config).ok()?;
-        // Report the last sample of the alarming block: when the evidence was complete.
-        let at = result.alarm_index.map(|b| {
+        // The last sample of usable block b: when its evidence was complete.
+        let block_end = |b: usize| {
             let next_first = s.block_first.get(b + 1).copied().unwrap_or(n);
             s.index[next_first.saturating_sub(1).min(n - 1)]
-        });
+        };
+        let at = result.alarm_index.map(&block_end);
+        if let (Some(traces), Some(path)) = (s.trace.as_deref_mut(), result.path.as_ref()) {
+            // The location model's quadratic form is Q^2 / m and its boundary g^2 / m: both
+            // times m, square-rooted, are |Q| and g.
+            let m = result.training as f64;
+            traces.l1 = Some(L1Trace {
+                angle: (0..path.statistic.len()).map(|j| angle[block_end(training + j)].to_f64()).collect(),
+                statistic: path.statistic.iter().map(|q| (q * m).sqrt()).collect(),
+                boundary: path.boundary.iter().map(|g| (g * m).sqrt()).collect(),
+                critical_value: result.critical_value,
+                gamma: result.gamma,
+                training: result.training,
+            });
+        }
         Some(L1Row {
             alarm_index: at,
             alarm_angle: at.map(|i| angle[i].to_f64()),

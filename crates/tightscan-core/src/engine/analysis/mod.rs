@@ -13,6 +13,7 @@ use crate::engine::input::{ChannelRow, Sample, Samples, TighteningTable};
 use crate::engine::rows::{PhaseRow, RowResult};
 use crate::engine::schema;
 use crate::engine::status::TighteningStatus;
+use crate::engine::traces::DetectorTraces;
 use crate::engine::Detector;
 use crate::physics::phases::{find_phases, PhaseScratch, Phases, MIN_FIT_SAMPLES};
 use crate::detectors::noise::{estimate_noise_in, whiten, NoiseModel, NoiseScratch};
@@ -79,6 +80,9 @@ pub(super) struct Scratch {
     tested_part: &'static str,
     /// Where the controller's step changes, in the current tightening.
     step_changes: Vec<usize>,
+    /// When set, the detector steps record what they computed along the window into it
+    /// ([`Detector::traces`]); the batch leaves it `None`, and records nothing.
+    pub(super) trace: Option<Box<DetectorTraces>>,
 }
 
 /// 1 % point of the likelihood ratio of a Student t against the normal
@@ -321,7 +325,7 @@ fn weigh(v: &[f64], weights: &[f64], out: &mut Vec<f64>) {
 /// Where one tightening sits in the table, and what the table says of its controller steps.
 #[derive(Clone, Copy, Debug)]
 struct Curve<'a> {
-    /// Row of the tightening in the batch.
+    /// Row of the tightening in the batch (seeds the kernel-density test's permutations).
     row: usize,
     /// Samples where the controller's step changes (empty without a step channel).
     step_changes: &'a [usize],
@@ -592,7 +596,9 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut
 }
 
 impl Detector {
-    pub(super) fn analyse_row(&self, table: &TighteningTable<'_>, i: usize, scratch: &mut Scratch) -> RowResult {
+    /// The analysis of row `i` of `table`; `seed_row` numbers it for the kernel-density test's
+    /// permutations (its row in the batch the caller analyses).
+    pub(super) fn analyse_row(&self, table: &TighteningTable<'_>, i: usize, seed_row: usize, scratch: &mut Scratch) -> RowResult {
         let (angle, torque) = match (table.angle.row(i), table.torque.row(i)) {
             (ChannelRow::Present { samples: a, .. }, ChannelRow::Present { samples: t, .. }) => (a, t),
             _ => return RowResult::failed(TighteningStatus::NullTightening, 0),
@@ -655,7 +661,7 @@ impl Detector {
             ChannelRow::Present { samples, .. } => Some(samples),
             ChannelRow::Null => None,
         });
-        let curve = Curve { row: i, step_changes: &step_changes, time };
+        let curve = Curve { row: seed_row, step_changes: &step_changes, time };
         let result = match (angle, torque) {
             (Samples::F32(a), Samples::F32(t)) => self.analyse_curve(a, t, friction, curve, scratch),
             (Samples::F32(a), Samples::F64(t)) => self.analyse_curve(a, t, friction, curve, scratch),

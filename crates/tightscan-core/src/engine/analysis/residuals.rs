@@ -1,10 +1,11 @@
 //! The residual step: the classical k-sigma chart and the kernel-density (L2 / MMD) test on the
 //! residuals of the robust elastic line (METHODS.md section 4).
 
-use crate::detectors::kde::{kde_change_test, KdeTestConfig, KdeWindow};
+use crate::detectors::kde::{kde_change_test, kde_density, silverman_bandwidth, KdeTestConfig, KdeWindow};
 use crate::detectors::shewhart::shewhart_scan;
 use crate::engine::input::Sample;
 use crate::engine::rows::{KdeRow, ResidualRow};
+use crate::engine::traces::{KdeTrace, DENSITY_POINTS};
 use crate::engine::Detector;
 use crate::physics::phases::robust_line;
 
@@ -50,7 +51,9 @@ impl Detector {
                 seed: cfg.kde_seed.wrapping_add(row as u64),
                 ..KdeTestConfig::default()
             };
-            if let Ok(k) = kde_change_test(&s.line_residuals, training, &test) {
+            let result = kde_change_test(&s.line_residuals, training, &test);
+            let compared = result.as_ref().map_or(training..n, |k| k.peak_start..k.peak_end);
+            if let Ok(k) = result {
                 out.kde = Some(KdeRow {
                     alarm: k.alarm,
                     statistic: k.statistic,
@@ -59,7 +62,38 @@ impl Detector {
                     change_angle: k.change_start.map(|c| at(c).1),
                 });
             }
+            if s.trace.is_some() {
+                self.density_trace(angle, training, compared, true, s);
+            }
+        } else if s.trace.is_some() {
+            self.density_trace(angle, training, training..n, false, s);
         }
         Some(out)
+    }
+
+    /// Records the kernel densities of the line residuals of the reference (the first
+    /// `training`) and of `compared`, with the test's bandwidth, when tracing.
+    fn density_trace<A: Sample>(&self, angle: &[A], training: usize, compared: std::ops::Range<usize>, tested: bool, s: &mut Scratch) {
+        let residuals = &s.line_residuals;
+        if training < 2 || training > residuals.len() || compared.start >= compared.end || compared.end > residuals.len() {
+            return;
+        }
+        let (before, after) = (&residuals[..training], &residuals[compared.clone()]);
+        let (Ok(bandwidth), Some(traces)) = (silverman_bandwidth(before), s.trace.as_deref_mut()) else { return };
+        let (lo, hi) = residuals.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &r| (lo.min(r), hi.max(r)));
+        let (lo, hi) = (lo - 3.0 * bandwidth, hi + 3.0 * bandwidth);
+        let step = (hi - lo) / (DENSITY_POINTS - 1) as f64;
+        let grid: Vec<f64> = (0..DENSITY_POINTS).map(|i| lo + step * i as f64).collect();
+        let lag = s.lag;
+        let at = |k: usize| angle[s.index[k + lag]].to_f64();
+        traces.kde = Some(KdeTrace {
+            before: kde_density(before, bandwidth, &grid),
+            after: kde_density(after, bandwidth, &grid),
+            grid,
+            bandwidth,
+            before_angles: (at(0), at(training - 1)),
+            after_angles: (at(compared.start), at(compared.end - 1)),
+            tested,
+        });
     }
 }

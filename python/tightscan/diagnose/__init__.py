@@ -62,6 +62,10 @@ from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
+from .refine import REFINABLE, refine_per_tightening, spread_summary
+
+#: the parameter of each effect whose per-tightening spread is reported (the first present)
+_PRIMARY_PARAMETER = ("tau_ms", "J_kg_m2", "a_eff", "b_eff", "elasticity_at_reference", "a_prevailing", "kappa")
 
 __all__ = ["diagnose", "Diagnosis", "Effect", "write_report", "load_table", "EFFECT_NAMES"]
 
@@ -602,10 +606,37 @@ def _diagnose(
             }
             if use_raw:
                 model, current, current_idx = trial, fit_raw, idx_raw
+    # the constant of each named effect per tightening (random effects around the pooled value,
+    # out of sample): the reported parameter stays the pooled one, its spread is reported beside
+    pooled_fit = current
+    refine_keys = {key: current_idx[key] for key, t in model.items() if not t.per_tightening and t.name in REFINABLE and key in current_idx}
+    pc_final, _pk, _zn, zc_final, _ = assemble(model)
+    directions: dict[str, F64] = {}
+    for key in refine_keys:
+        if model[key].name != "channel_delay":
+            continue
+        # the lag's contribution is the low-pass path of the torque at tau, nonlinear in tau:
+        # its derivative by the relative change of tau, a central difference of the path
+        tau_now = float(current.beta[current_idx[key][0]])
+        if not 0 < tau_now < 1.0:
+            continue
+        paths = []
+        for step in (1.1, 1 / 1.1):
+            build += 1
+            tau_step = tau_now * step
+            lag_at = _candidates(s, eng, current, declared, build, _model_periods(model), {"tau_s": tau_step})[0].get(key)
+            if lag_at is not None:
+                paths.append(tau_step * lag_at.columns[0])
+        if len(paths) == 2:
+            directions[key] = (paths[0] - paths[1]) / (1.1 - 1 / 1.1)
+    refinement = refine_per_tightening(eng, pc_final, zc_final, current, refine_keys, alpha, directions) if refine_keys else None
+    if refinement is not None and refinement["significant"]:
+        current = refinement["fit"]
     final = current
-    # parameters of the added effects from the final model
+    # parameters of the added effects from the final model (the pooled coefficients)
+    per_tightening_constants: dict[str, F64] = {}
     for eff, key in zip(effects, list(model)):
-        eff.parameters = model[key].parameters(final, current_idx[key])
+        eff.parameters = model[key].parameters(pooled_fit, current_idx[key])
         if key in lag_forms:
             lf = lag_forms[key]
             mean_lag = lf["mean_lag_ms"]
@@ -632,6 +663,12 @@ def _diagnose(
                     "and its backward difference as with the smoothed speed and acceleration (a program that feeds the torque back into "
                     "the speed: the acceleration the transducer feels is faster than the sampling resolves); the effect is named, its size is not pinned"
                 )
+        if refinement is not None and key in refinement["terms"]:
+            rt = refinement["terms"][key]
+            pname = next((n for n in _PRIMARY_PARAMETER if isinstance(eff.parameters.get(n), dict)), None)
+            if pname is not None:
+                eff.parameters_spread = spread_summary(eff.parameters[pname], rt["factor"], rt["factor_raw"], rt["between_tightening_sd_relative"], bool(refinement["significant"]), pname)
+                per_tightening_constants[f"{model[key].name}_{pname}"] = float(eff.parameters[pname]["value"]) * rt["factor"]
     white = _whiteness(s, final.resid)
     # the spectral search again with the model's periodic terms taken out of the long stretch:
     # a significant peak left is a periodicity that no candidate explains
@@ -682,6 +719,8 @@ def _diagnose(
             "prevailing_torque": pa.array(np.where(g.sum(rd) > 0, g.sum((s.y - final.resid) * rd) / np.maximum(g.sum(rd), 1), np.nan)),
             "noise_sd": pa.array(sig_t),
         }
+        # each named effect's constant per tightening (shrunk towards the pooled value)
+        | {name: pa.array(v) for name, v in per_tightening_constants.items()}
     )
     rb, ra = np.sqrt(mse_before_t), np.sqrt(final.mse_t)
     details: dict[str, Any] = {
@@ -708,6 +747,7 @@ def _diagnose(
         },
         "noise_floor_estimate": float(np.sqrt(np.sum(g.count * sig_t**2) / np.sum(g.count))),
         "whiteness": white,
+        "per_tightening_constants": _refinement_details(refinement, pooled_fit.rmse, final.rmse),
         "collinearity": collinearity,
         "ties": ties,
         "form_misfit": misfits,
@@ -851,6 +891,28 @@ def _window(search: dict[str, Any], domain: str) -> float:
     ax = search.get("axes", {}).get(domain, {})
     w = ax.get("window_deg" if domain == "angle" else "window_s")
     return float(w) if w else float("inf")
+
+
+def _refinement_details(refinement: dict[str, Any] | None, rmse_pooled: float, rmse_after: float) -> dict[str, Any]:
+    """``details["per_tightening_constants"]``: whether the named effects' constants were refined
+    per tightening, the out-of-sample RMSE with pooled and with per-tightening constants, and
+    the test that decided which one ``rmse_after`` is."""
+    if refinement is None:
+        return {"refined": [], "rmse_pooled_constants": rmse_pooled, "rmse_after": rmse_after, "note": "no named effect with a constant to refine"}
+    return {
+        "refined": list(refinement["terms"]),
+        "rmse_pooled_constants": refinement["rmse_pooled_constants"],
+        "rmse_per_tightening_constants": refinement["rmse_per_tightening_constants"],
+        "rmse_gain": refinement["rmse_gain"],
+        "p_value": refinement["p_value"],
+        "used_in_rmse_after": refinement["significant"],
+        "rmse_after": rmse_after,
+        "protocol": (
+            "out of sample: pooled coefficients fitted without the tightening's fold, the between-tightening variance "
+            "without that fold, each tightening's factor on one alternate block of its samples predicting the other; "
+            "used in rmse_after when its per-tightening improvement passes the one-sided t test at alpha"
+        ),
+    }
 
 
 def _no_parameters(fit: _Fit, idx: list[int]) -> dict[str, Any]:

@@ -62,6 +62,7 @@ from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
+from .stribeck import speed_law_forms
 from .refine import REFINABLE, refine_per_tightening, spread_summary
 
 #: the parameter of each effect whose per-tightening spread is reported (the first present)
@@ -562,6 +563,39 @@ def _diagnose(
         lag_forms[key] = {"extension_gain": test, "first_order_tau_ms": model[key].parameters(current, current_idx[key]).get("tau_ms"), "mean_lag_ms": extended.parameters(fit_ext, idx_ext[key]).get("tau_ms"), "kept": test["significant"]}
         if test["significant"]:
             model, current, current_idx = trial, fit_ext, idx_ext
+    # the form of a speed law: the Stribeck curve (a friction minimum between static friction
+    # and the viscous rise, which neither the logarithmic nor the linear law has) or the
+    # logarithmic law with an offset speed, ln(1 + v / v0), replaces the law the loop named
+    # when, at its best shape parameters on the grid, it passes the loop's gain test against
+    # that law at alpha over the grid (Bonferroni)
+    speed_forms: dict[str, Any] = {}
+    for key, held in list(model.items()):
+        if held.name != "speed_dependent_friction":
+            continue
+        grid = speed_law_forms(s, eng, current, declared, key, build + 1, _hints(model, current, current_idx).get("tau_s", 0.0))
+        build += len(grid) + 1
+        profile: list[dict[str, Any]] = []
+        best_form: tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term] | None = None
+        for cand in grid:
+            trial = {k: (cand if k == key else t) for k, t in model.items()}
+            fit_c, idx_c = evaluate_with(trial, None)
+            shape = {k: v for k, v in cand.info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "offset_speed_rpm")}
+            profile.append(shape | {"rmse": fit_c.rmse})
+            if best_form is None or fit_c.rmse < best_form[0].rmse:
+                best_form = (fit_c, idx_c, trial, cand)
+        if best_form is None:
+            continue
+        test = _gain_test(current, best_form[0], alpha / len(grid), min_gain)
+        speed_forms[key] = {
+            "law_named": held.info.get("law"),
+            "best_other_form": best_form[3].info.get("law"),
+            "its_gain_over_the_law_named": test,
+            "kept": test["significant"],
+            "bonferroni_alpha": alpha / len(grid),
+            "grid": profile,
+        }
+        if test["significant"]:
+            current, current_idx, model = best_form[0], best_form[1], best_form[2]
     # identifiability of the parameters of a speed law and of an inertia: estimated again with
     # the speed channel as recorded and its backward difference instead of the smoothed speed
     # and acceleration. Where a tool program feeds the measured torque back into the speed (a
@@ -609,7 +643,12 @@ def _diagnose(
     # the constant of each named effect per tightening (random effects around the pooled value,
     # out of sample): the reported parameter stays the pooled one, its spread is reported beside
     pooled_fit = current
-    refine_keys = {key: current_idx[key] for key, t in model.items() if not t.per_tightening and t.name in REFINABLE and key in current_idx}
+    # one factor per law; a Stribeck law's static and viscous parts each their own
+    refine_keys = {
+        key: ([[i] for i in current_idx[key]] if t.info.get("law") == "stribeck" else [current_idx[key]])
+        for key, t in model.items()
+        if not t.per_tightening and t.name in REFINABLE and key in current_idx
+    }
     pc_final, _pk, _zn, zc_final, _ = assemble(model)
     directions: dict[str, F64] = {}
     for key in refine_keys:
@@ -649,6 +688,9 @@ def _diagnose(
                 else "first order or not told apart from it; tau_ms is the mean lag of the extended form (consistent for any form), first_order_tau_ms the first-order fit"
             )
             eff.evidence["lag_form"] = lf
+        if key in speed_forms:
+            eff.evidence["speed_law_form"] = speed_forms[key]
+            eff.parameters["form"] = str(model[key].info.get("law"))
         if key in estimator_check:
             chk = estimator_check[key]
             eff.evidence["estimator_check"] = chk
@@ -665,10 +707,17 @@ def _diagnose(
                 )
         if refinement is not None and key in refinement["terms"]:
             rt = refinement["terms"][key]
-            pname = next((n for n in _PRIMARY_PARAMETER if isinstance(eff.parameters.get(n), dict)), None)
-            if pname is not None:
-                eff.parameters_spread = spread_summary(eff.parameters[pname], rt["factor"], rt["factor_raw"], rt["between_tightening_sd_relative"], bool(refinement["significant"]), pname)
-                per_tightening_constants[f"{model[key].name}_{pname}"] = float(eff.parameters[pname]["value"]) * rt["factor"]
+            # the parameter each factor scales: the law's constant, or a Stribeck law's static
+            # and viscous coefficients
+            if model[key].info.get("law") == "stribeck":
+                pnames: list[str] = ["s_eff", "k_eff"]
+            else:
+                pnames = [n for n in _PRIMARY_PARAMETER if isinstance(eff.parameters.get(n), dict)][:1]
+            for c, pname in enumerate(pnames[: len(rt["factors"])]):
+                eff.parameters_spread[pname] = spread_summary(
+                    eff.parameters[pname], rt["factors"][c], rt["factors_raw"][c], rt["between_tightening_sd_relative_by_component"][c], bool(refinement["significant"])
+                )
+                per_tightening_constants[f"{model[key].name}_{pname}"] = float(eff.parameters[pname]["value"]) * rt["factors"][c]
     white = _whiteness(s, final.resid)
     # the spectral search again with the model's periodic terms taken out of the long stretch:
     # a significant peak left is a periodicity that no candidate explains

@@ -60,24 +60,45 @@ def _dersimonian_laird(d: F64, v: F64) -> float:
     return max(0.0, (q - (k - 1)) / den) if den > 0 else 0.0
 
 
-def _factor_fit(eng: _Engine, pcols: Sequence[F64], base: F64, u: F64, w: F64 | None) -> tuple[F64, F64, F64, F64]:
-    """Per tightening: the factor deviation d_j of ``u`` in ``base ~ P_j c_j + d_j u`` fitted on
-    the samples weighted ``w`` (a half, or all), its variance, and the residuals of ``base`` and
-    ``u`` on the tightening's own columns (fitted on those samples, evaluated on all)."""
+def _factor_fit(eng: _Engine, pcols: Sequence[F64], base: F64, us: Sequence[F64], w: F64 | None) -> tuple[F64, F64, list[F64]]:
+    """Per tightening: the factor deviations d_j (one per component ``us``) in
+    ``base ~ P_j c_j + sum_k d_jk u_k`` fitted on the samples weighted ``w`` (a half, or all),
+    their covariance, and the residuals of each ``u_k`` on the tightening's own columns (fitted
+    on those samples, evaluated on all). Shapes (G, K), (G, K, K)."""
     g = eng.g
-    _, fitted = g.fit(list(pcols), [base, u], w=w)
+    k = len(us)
+    _, fitted = g.fit(list(pcols), [base, *us], w=w)
     ry = base - fitted[:, 0]
-    ru = u - fitted[:, 1]
+    ru = [u - fitted[:, 1 + i] for i, u in enumerate(us)]
     ww = np.ones_like(base) if w is None else w
-    num = g.sum(ww * ry * ru)
-    den = g.sum(ww * ru * ru)
-    live = den > 1e-300
-    d = np.where(live, num / np.where(live, den, 1.0), 0.0)
-    n_used = g.sum(ww)
-    rss = np.maximum(g.sum(ww * ry * ry) - d * num, 0.0)
-    s2 = rss / np.maximum(n_used - len(pcols) - 1.0, 1.0)
-    v = np.where(live, s2 / np.where(live, den, 1.0), np.inf)
-    return d, v, ry, ru
+    A = np.empty((g.n, k, k))
+    b = np.empty((g.n, k))
+    for a in range(k):
+        b[:, a] = g.sum(ww * ry * ru[a])
+        for c in range(a, k):
+            A[:, a, c] = A[:, c, a] = g.sum(ww * ru[a] * ru[c])
+    scale = np.trace(A, axis1=1, axis2=2) / k
+    live = scale > 1e-300
+    A[:, np.arange(k), np.arange(k)] += (1e-9 * scale + 1e-300)[:, None]
+    Ainv = np.linalg.inv(A)
+    d = np.where(live[:, None], np.einsum("gij,gj->gi", Ainv, b), 0.0)
+    rss = np.maximum(g.sum(ww * ry * ry) - np.sum(d * b, axis=1), 0.0)
+    s2 = rss / np.maximum(g.sum(ww) - len(pcols) - k, 1.0)
+    V = np.where(live[:, None, None], Ainv * s2[:, None, None], np.inf)
+    return d, V, ru
+
+
+def _shrink(d: F64, V: F64, tau2: F64) -> F64:
+    """Posterior mean of the per-tightening deviations under a normal prior of variances
+    ``tau2`` (per tightening, per component): T (T + V_j)^-1 d_j."""
+    k = d.shape[1]
+    T = np.zeros_like(V)
+    T[:, np.arange(k), np.arange(k)] = tau2
+    ok = np.all(np.isfinite(V.reshape(len(V), -1)), axis=1)
+    M = np.where(ok[:, None, None], T + np.where(ok[:, None, None], V, 0.0), np.eye(k))
+    x = np.linalg.solve(M, np.where(ok[:, None], d, 0.0)[:, :, None])[:, :, 0]
+    out: F64 = np.where(ok[:, None], np.einsum("gij,gj->gi", T, x), 0.0)
+    return out
 
 
 def refine_per_tightening(
@@ -85,15 +106,18 @@ def refine_per_tightening(
     pcols: Sequence[F64],
     zcols: Sequence[F64],
     fit: _Fit,
-    terms: dict[str, list[int]],
+    terms: dict[str, list[list[int]]],
     alpha: float,
     directions: dict[str, F64] | None = None,
 ) -> dict[str, Any] | None:
-    """Refine, per tightening, the constant of each global term in ``terms`` (key -> indices of
-    its columns in ``zcols``), jointly with the model's other coefficients held at their
-    pooled values. Returns the refined out-of-sample residual and its RMSE, the per-tightening
-    factors (in-sample, shrunk) of each term, the between-tightening sd of each factor, and the
-    gain test of the refinement against ``fit``; None when there is nothing to refine.
+    """Refine, per tightening, the constant of each global term in ``terms`` (key -> its
+    components, each a list of indices of its columns in ``zcols`` that share one factor: one
+    component for a law with one constant, two for a Stribeck law whose static and viscous
+    parts may vary apart), with the model's other coefficients held at their pooled values.
+    Returns the refined out-of-sample residual and its RMSE, the per-tightening factors
+    (in-sample, shrunk) of each term's first component, the between-tightening sd of each
+    factor, and the gain test of the refinement against ``fit``; None when there is nothing to
+    refine.
 
     ``directions``: for a term whose contribution is not linear in its constant (a channel
     lag: the low-pass path of the torque, not tau times a fixed column), the derivative of its
@@ -103,54 +127,56 @@ def refine_per_tightening(
     if not terms or len(fit.beta) == 0:
         return None
     fold = eng.fold
-    k_all = len(zcols)
-    # the model's prediction with each tightening's out-of-fold coefficients, and in-sample
     zb_oos = np.zeros(len(s.y))
     zb_in = np.zeros(len(s.y))
-    for i in range(k_all):
+    for i in range(len(zcols)):
         zb_oos += zcols[i] * fit.beta_folds[fold, i]
         zb_in += zcols[i] * fit.beta[i]
     e = fit.e_oos.copy()
-    d_in_all: dict[str, F64] = {}
     out_terms: dict[str, Any] = {}
     base_oos = s.y - zb_oos
     base_in = s.y - zb_in
+    lo, hi = FACTOR_BOUNDS[0] - 1.0, FACTOR_BOUNDS[1] - 1.0
     # one term after the other, each on the residual the ones before it left (in practice one
     # named effect; with two the second is refined with the first's factors in)
-    for key, idx in terms.items():
-        u_oos = np.zeros(len(s.y))
-        u_in = np.zeros(len(s.y))
-        for i in idx:
-            u_oos += zcols[i] * fit.beta_folds[fold, i]
-            u_in += zcols[i] * fit.beta[i]
+    for key, comps in terms.items():
+        us_oos: list[F64] = []
+        us_in: list[F64] = []
         if directions is not None and key in directions:
-            u_in = directions[key]
-            u_oos = u_in
-        if not np.any(u_in != 0):
+            us_oos, us_in = [directions[key]], [directions[key]]
+        else:
+            for idx in comps:
+                us_oos.append(sum((zcols[i] * fit.beta_folds[fold, i] for i in idx), np.zeros(len(s.y))))
+                us_in.append(sum((zcols[i] * fit.beta[i] for i in idx), np.zeros(len(s.y))))
+        keep = [i for i, u in enumerate(us_in) if np.any(u != 0)]
+        if not keep:
             continue
-        # all samples: the per-tightening estimates and the between-tightening variance
-        d_full, v_full, _, _ = _factor_fit(eng, pcols, base_in, u_in, None)
-        tau2 = _dersimonian_laird(d_full, v_full)
-        # tau^2 of each fold from the tightenings outside it
-        tau2_fold = np.array([_dersimonian_laird(d_full[eng.fold_t != f], v_full[eng.fold_t != f]) for f in range(eng.n_folds)])
+        us_oos, us_in = [us_oos[i] for i in keep], [us_in[i] for i in keep]
+        k = len(us_in)
+        # all samples: the per-tightening estimates and the between-tightening variances
+        d_full, V_full, ru_full = _factor_fit(eng, pcols, base_in, us_in, None)
+        tau2 = np.array([_dersimonian_laird(d_full[:, c], V_full[:, c, c]) for c in range(k)])
+        # the variances of each fold from the tightenings outside it
+        tau2_fold = np.array([[_dersimonian_laird(d_full[eng.fold_t != f, c], V_full[eng.fold_t != f, c, c]) for c in range(k)] for f in range(eng.n_folds)])
         t2 = tau2_fold[eng.fold_t]
-        lo, hi = FACTOR_BOUNDS[0] - 1.0, FACTOR_BOUNDS[1] - 1.0
         # each half predicts the other
         e_new = e.copy()
         for w_fit, other in ((eng.h0, eng.h1 > 0), (eng.h1, eng.h0 > 0)):
-            d_h, v_h, _, ru_h = _factor_fit(eng, pcols, base_oos, u_oos, w_fit)
-            shrunk = np.clip(np.where(np.isfinite(v_h), t2 / (t2 + v_h), 0.0) * d_h, lo, hi)
-            shrunk = np.where(t2 > 0, shrunk, 0.0)
-            e_new = np.where(other, e_new - shrunk[s.gid] * ru_h, e_new)
-        d_shrunk = np.clip(np.where(np.isfinite(v_full), tau2 / (tau2 + v_full), 0.0) * d_full, lo, hi) if tau2 > 0 else np.zeros_like(d_full)
+            d_h, V_h, ru_h = _factor_fit(eng, pcols, base_oos, us_oos, w_fit)
+            shrunk = np.clip(_shrink(d_h, V_h, t2), lo, hi)
+            pred = sum((shrunk[s.gid, c] * ru_h[c] for c in range(k)), np.zeros(len(s.y)))
+            e_new = np.where(other, e_new - pred, e_new)
+        d_shrunk = np.clip(_shrink(d_full, V_full, np.broadcast_to(tau2, d_full.shape)), lo, hi)
         e = e_new
-        base_in = base_in - d_shrunk[s.gid] * u_in
-        d_in_all[key] = d_shrunk
+        base_in = base_in - sum((d_shrunk[s.gid, c] * us_in[c] for c in range(k)), np.zeros(len(s.y)))
         out_terms[key] = {
-            "between_tightening_sd_relative": math.sqrt(tau2),
+            "between_tightening_sd_relative": math.sqrt(float(tau2[0])),
+            "between_tightening_sd_relative_by_component": [math.sqrt(float(v)) for v in tau2],
             "tau2_by_fold": tau2_fold,
-            "factor": 1.0 + d_shrunk,
-            "factor_raw": 1.0 + d_full,
+            "factor": 1.0 + d_shrunk[:, 0],
+            "factor_raw": 1.0 + d_full[:, 0],
+            "factors": [1.0 + d_shrunk[:, c] for c in range(k)],
+            "factors_raw": [1.0 + d_full[:, c] for c in range(k)],
         }
     if not out_terms:
         return None
@@ -170,7 +196,7 @@ def refine_per_tightening(
     }
 
 
-def spread_summary(pooled: dict[str, Any] | None, factor: F64, factor_raw: F64, sd_rel: float, used: bool, parameter: str) -> dict[str, Any]:
+def spread_summary(pooled: dict[str, Any] | None, factor: F64, factor_raw: F64, sd_rel: float, used: bool) -> dict[str, Any]:
     """The between-tightening spread of an effect's constant for the JSON: the pooled value, the
     sd of the constant between tightenings (the random-effects estimate, not the spread of the
     noisy per-tightening fits), and quantiles of the shrunk per-tightening values."""
@@ -178,7 +204,6 @@ def spread_summary(pooled: dict[str, Any] | None, factor: F64, factor_raw: F64, 
     per_t = value * factor
     q = np.percentile(per_t, [5, 25, 50, 75, 95]) if len(per_t) else np.full(5, np.nan)
     return {
-        "parameter": parameter,
         "pooled": value,
         "sd_between_tightenings": abs(value) * sd_rel,
         "sd_relative": sd_rel,

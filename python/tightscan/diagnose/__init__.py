@@ -264,6 +264,38 @@ def _diagnose(
         pc, pk, zn, zc, idx = assemble(both)
         return eng.evaluate(pk, pc, zn, zc), idx
 
+    def _refine_model(model_: dict[str, _Term], fit_: _Fit, idx_: dict[str, list[int]], keys: set[str] | None = None) -> dict[str, Any] | None:
+        """The named effects' constants refined per tightening (``refine.py``) in the model
+        ``model_`` fitted as ``fit_``: one factor per law, a Stribeck law's static and viscous
+        parts each their own; a lag along the derivative of its low-pass path in tau."""
+        nonlocal build
+        comps = {
+            key: ([[i] for i in idx_[key]] if t.info.get("law") == "stribeck" else [idx_[key]])
+            for key, t in model_.items()
+            if not t.per_tightening and t.name in REFINABLE and key in idx_ and (keys is None or key in keys)
+        }
+        if not comps:
+            return None
+        pc_, _pk_, _zn_, zc_, _ = assemble(model_)
+        directions: dict[str, F64] = {}
+        for key in comps:
+            if model_[key].name != "channel_delay":
+                continue
+            # the lag's contribution is the low-pass path of the torque at tau, nonlinear in
+            # tau: its derivative by the relative change of tau, a central difference
+            tau_now = float(fit_.beta[idx_[key][0]])
+            if not 0 < tau_now < 1.0:
+                continue
+            paths = []
+            for step in (1.1, 1 / 1.1):
+                build += 1
+                lag_at = _candidates(s, eng, fit_, declared, build, _model_periods(model_), {"tau_s": tau_now * step})[0].get(key)
+                if lag_at is not None:
+                    paths.append(tau_now * step * lag_at.columns[0])
+            if len(paths) == 2:
+                directions[key] = (paths[0] - paths[1]) / (1.1 - 1 / 1.1)
+        return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions)
+
     model: dict[str, _Term] = {}
     base, _ = evaluate_with(model, None)
     # weights: 1 / sigma_j^2 of the declared fit (robust to smooth structure: first differences)
@@ -454,6 +486,26 @@ def _diagnose(
                     "round": round_no + 1,
                 }
                 break
+        if misfit is None and not term.per_tightening:
+            # ... and when the constants of the effects in the model may differ between
+            # tightenings (a filter, an inertia, a lubricant per tool or screw): structure that
+            # per-tightening constants take up is their spread, not a further effect (under a
+            # hold-down program a speed law follows a lag's per-tightening error closely)
+            held_refined = _refine_model(model, current, current_idx)
+            if held_refined is not None:
+                with_term, with_idx = evaluate_with(model, term)
+                both = _refine_model(dict(model) | {term.key: term}, with_term, with_idx, keys=set(held_refined["terms"]))
+                if both is not None:
+                    keep = _gain_test(held_refined["fit"], both["fit"], alpha / m, min_gain)
+                    if not keep["significant"]:
+                        misfit = {
+                            "candidate": term.name,
+                            "effect": ", ".join(model[k].name for k in held_refined["terms"]),
+                            "kind": "per-tightening constants of the effects in the model",
+                            "extension_gain": _gain_test(current, held_refined["fit"], alpha / m, min_gain),
+                            "candidate_gain_with_extension_in": keep,
+                            "round": round_no + 1,
+                        }
         if misfit is not None:
             misfits.append(misfit)
             misfit_out.add(term.name)
@@ -643,32 +695,7 @@ def _diagnose(
     # the constant of each named effect per tightening (random effects around the pooled value,
     # out of sample): the reported parameter stays the pooled one, its spread is reported beside
     pooled_fit = current
-    # one factor per law; a Stribeck law's static and viscous parts each their own
-    refine_keys = {
-        key: ([[i] for i in current_idx[key]] if t.info.get("law") == "stribeck" else [current_idx[key]])
-        for key, t in model.items()
-        if not t.per_tightening and t.name in REFINABLE and key in current_idx
-    }
-    pc_final, _pk, _zn, zc_final, _ = assemble(model)
-    directions: dict[str, F64] = {}
-    for key in refine_keys:
-        if model[key].name != "channel_delay":
-            continue
-        # the lag's contribution is the low-pass path of the torque at tau, nonlinear in tau:
-        # its derivative by the relative change of tau, a central difference of the path
-        tau_now = float(current.beta[current_idx[key][0]])
-        if not 0 < tau_now < 1.0:
-            continue
-        paths = []
-        for step in (1.1, 1 / 1.1):
-            build += 1
-            tau_step = tau_now * step
-            lag_at = _candidates(s, eng, current, declared, build, _model_periods(model), {"tau_s": tau_step})[0].get(key)
-            if lag_at is not None:
-                paths.append(tau_step * lag_at.columns[0])
-        if len(paths) == 2:
-            directions[key] = (paths[0] - paths[1]) / (1.1 - 1 / 1.1)
-    refinement = refine_per_tightening(eng, pc_final, zc_final, current, refine_keys, alpha, directions) if refine_keys else None
+    refinement = _refine_model(model, current, current_idx)
     if refinement is not None and refinement["significant"]:
         current = refinement["fit"]
     final = current

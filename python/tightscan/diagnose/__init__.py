@@ -277,9 +277,15 @@ def _diagnose(
         if not comps:
             return None
         pc_, _pk_, _zn_, zc_, _ = assemble(model_)
-        directions: dict[str, F64] = {}
+        directions: dict[str, list[F64]] = {}
         for key in comps:
-            if model_[key].name != "channel_delay":
+            held = model_[key]
+            if held.info.get("law") == "stribeck" and held.extension and len(idx_[key]) == 2:
+                # static part, viscous part, and the Stribeck speed (its derivative, times s_eff)
+                b_static, b_viscous = (float(fit_.beta[i]) for i in idx_[key])
+                directions[key] = [held.columns[0] * b_static, held.columns[1] * b_viscous, held.extension[0] * b_static]
+                continue
+            if held.name != "channel_delay":
                 continue
             # the lag's contribution is the low-pass path of the torque at tau, nonlinear in
             # tau: its derivative by the relative change of tau, a central difference
@@ -293,7 +299,7 @@ def _diagnose(
                 if lag_at is not None:
                     paths.append(tau_now * step * lag_at.columns[0])
             if len(paths) == 2:
-                directions[key] = (paths[0] - paths[1]) / (1.1 - 1 / 1.1)
+                directions[key] = [(paths[0] - paths[1]) / (1.1 - 1 / 1.1)]
         return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions)
 
     model: dict[str, _Term] = {}
@@ -624,14 +630,25 @@ def _diagnose(
     for key, held in list(model.items()):
         if held.name != "speed_dependent_friction":
             continue
-        grid = speed_law_forms(s, eng, current, declared, key, build + 1, _hints(model, current, current_idx).get("tau_s", 0.0))
+        tau_hint = _hints(model, current, current_idx).get("tau_s", 0.0)
+        grid = speed_law_forms(s, eng, current, declared, key, build + 1, tau_hint)
         build += len(grid) + 1
+        if s.omega_raw is not None:
+            # and with the speed channel as recorded (a clean channel keeps the corners of a
+            # pause and of a program step that the smoothing rounds off, where a Stribeck law
+            # is steepest)
+            s_raw = dataclasses.replace(s, omega=s.omega_raw)
+            raw_grid = speed_law_forms(s_raw, eng, current, declared, key, build + 1, tau_hint)
+            for cand in raw_grid:
+                cand.info["speed_source"] = "speed channel as recorded"
+            grid += raw_grid
+            build += len(raw_grid) + 1
         profile: list[dict[str, Any]] = []
         best_form: tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term] | None = None
         for cand in grid:
             trial = {k: (cand if k == key else t) for k, t in model.items()}
             fit_c, idx_c = evaluate_with(trial, None)
-            shape = {k: v for k, v in cand.info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "offset_speed_rpm")}
+            shape = {k: v for k, v in cand.info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "offset_speed_rpm", "speed_source")}
             profile.append(shape | {"rmse": fit_c.rmse})
             if best_form is None or fit_c.rmse < best_form[0].rmse:
                 best_form = (fit_c, idx_c, trial, cand)
@@ -735,16 +752,18 @@ def _diagnose(
         if refinement is not None and key in refinement["terms"]:
             rt = refinement["terms"][key]
             # the parameter each factor scales: the law's constant, or a Stribeck law's static
-            # and viscous coefficients
+            # and viscous coefficients and its Stribeck speed (whose component is the change of
+            # ln v_s: the factor on v_s is exp of it)
             if model[key].info.get("law") == "stribeck":
-                pnames: list[str] = ["s_eff", "k_eff"]
+                pnames: list[str] = ["s_eff", "k_eff", "stribeck_speed_rpm"]
             else:
                 pnames = [n for n in _PRIMARY_PARAMETER if isinstance(eff.parameters.get(n), dict)][:1]
             for c, pname in enumerate(pnames[: len(rt["factors"])]):
-                eff.parameters_spread[pname] = spread_summary(
-                    eff.parameters[pname], rt["factors"][c], rt["factors_raw"][c], rt["between_tightening_sd_relative_by_component"][c], bool(refinement["significant"])
-                )
-                per_tightening_constants[f"{model[key].name}_{pname}"] = float(eff.parameters[pname]["value"]) * rt["factors"][c]
+                fac, fac_raw, sd_c = rt["factors"][c], rt["factors_raw"][c], rt["between_tightening_sd_relative_by_component"][c]
+                if pname == "stribeck_speed_rpm":
+                    fac, fac_raw = np.exp(fac - 1.0), np.exp(np.clip(fac_raw - 1.0, -50.0, 50.0))
+                eff.parameters_spread[pname] = spread_summary(eff.parameters[pname], fac, fac_raw, sd_c, bool(refinement["significant"]))
+                per_tightening_constants[f"{model[key].name}_{pname}"] = float(eff.parameters[pname]["value"]) * fac
     white = _whiteness(s, final.resid)
     # the spectral search again with the model's periodic terms taken out of the long stretch:
     # a significant peak left is a periodicity that no candidate explains
@@ -823,7 +842,7 @@ def _diagnose(
         },
         "noise_floor_estimate": float(np.sqrt(np.sum(g.count * sig_t**2) / np.sum(g.count))),
         "whiteness": white,
-        "per_tightening_constants": _refinement_details(refinement, pooled_fit.rmse, final.rmse),
+        "per_tightening_constants": _refinement_details(refinement, pooled_fit.rmse, final.rmse, model),
         "collinearity": collinearity,
         "ties": ties,
         "form_misfit": misfits,
@@ -969,14 +988,14 @@ def _window(search: dict[str, Any], domain: str) -> float:
     return float(w) if w else float("inf")
 
 
-def _refinement_details(refinement: dict[str, Any] | None, rmse_pooled: float, rmse_after: float) -> dict[str, Any]:
+def _refinement_details(refinement: dict[str, Any] | None, rmse_pooled: float, rmse_after: float, model: dict[str, _Term]) -> dict[str, Any]:
     """``details["per_tightening_constants"]``: whether the named effects' constants were refined
     per tightening, the out-of-sample RMSE with pooled and with per-tightening constants, and
     the test that decided which one ``rmse_after`` is."""
     if refinement is None:
         return {"refined": [], "rmse_pooled_constants": rmse_pooled, "rmse_after": rmse_after, "note": "no named effect with a constant to refine"}
     return {
-        "refined": list(refinement["terms"]),
+        "refined": [model[k].name + (f" ({model[k].info['law']} law)" if model[k].info.get("law") else "") for k in refinement["terms"]],
         "rmse_pooled_constants": refinement["rmse_pooled_constants"],
         "rmse_per_tightening_constants": refinement["rmse_per_tightening_constants"],
         "rmse_gain": refinement["rmse_gain"],

@@ -108,7 +108,7 @@ def refine_per_tightening(
     fit: _Fit,
     terms: dict[str, list[list[int]]],
     alpha: float,
-    directions: dict[str, F64] | None = None,
+    directions: dict[str, list[F64]] | None = None,
 ) -> dict[str, Any] | None:
     """Refine, per tightening, the constant of each global term in ``terms`` (key -> its
     components, each a list of indices of its columns in ``zcols`` that share one factor: one
@@ -119,10 +119,10 @@ def refine_per_tightening(
     factor, and the gain test of the refinement against ``fit``; None when there is nothing to
     refine.
 
-    ``directions``: for a term whose contribution is not linear in its constant (a channel
-    lag: the low-pass path of the torque, not tau times a fixed column), the derivative of its
-    contribution with respect to the relative change of the constant, in place of the
-    contribution itself (a Gauss-Newton step per tightening)."""
+    ``directions``: for a term whose contribution is not linear in its constants (a channel
+    lag: the low-pass path of the torque, not tau times a fixed column; a Stribeck law's
+    Stribeck speed), the derivatives of its contribution with respect to the relative change
+    of each constant, in place of its components (a Gauss-Newton step per tightening)."""
     s, g = eng.s, eng.g
     if not terms or len(fit.beta) == 0:
         return None
@@ -143,7 +143,7 @@ def refine_per_tightening(
         us_oos: list[F64] = []
         us_in: list[F64] = []
         if directions is not None and key in directions:
-            us_oos, us_in = [directions[key]], [directions[key]]
+            us_oos, us_in = list(directions[key]), list(directions[key])
         else:
             for idx in comps:
                 us_oos.append(sum((zcols[i] * fit.beta_folds[fold, i] for i in idx), np.zeros(len(s.y))))

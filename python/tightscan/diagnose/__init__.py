@@ -264,6 +264,8 @@ def _diagnose(
         pc, pk, zn, zc, idx = assemble(both)
         return eng.evaluate(pk, pc, zn, zc), idx
 
+    build = 0  # a counter that tags each rebuild of the candidates (the engine caches by it)
+
     def _refine_model(model_: dict[str, _Term], fit_: _Fit, idx_: dict[str, list[int]], keys: set[str] | None = None) -> dict[str, Any] | None:
         """The named effects' constants refined per tightening (``refine.py``) in the model
         ``model_`` fitted as ``fit_``: one factor per law, a Stribeck law's static and viscous
@@ -329,7 +331,6 @@ def _diagnose(
     misfits: list[dict[str, Any]] = []
     misfit_out: set[str] = set()  # candidates that only took up the form misfit of an effect in
     partial: dict[str, Any] = {}
-    build = 0
     for round_no in range(max_effects + 1):
         bar.advance()
         build += 1
@@ -500,9 +501,9 @@ def _diagnose(
             held_refined = _refine_model(model, current, current_idx)
             if held_refined is not None:
                 with_term, with_idx = evaluate_with(model, term)
-                both = _refine_model(dict(model) | {term.key: term}, with_term, with_idx, keys=set(held_refined["terms"]))
-                if both is not None:
-                    keep = _gain_test(held_refined["fit"], both["fit"], alpha / m, min_gain)
+                term_refined = _refine_model(dict(model) | {term.key: term}, with_term, with_idx, keys=set(held_refined["terms"]))
+                if term_refined is not None:
+                    keep = _gain_test(held_refined["fit"], term_refined["fit"], alpha / m, min_gain)
                     if not keep["significant"]:
                         misfit = {
                             "candidate": term.name,
@@ -758,12 +759,12 @@ def _diagnose(
                 pnames: list[str] = ["s_eff", "k_eff", "stribeck_speed_rpm"]
             else:
                 pnames = [n for n in _PRIMARY_PARAMETER if isinstance(eff.parameters.get(n), dict)][:1]
-            for c, pname in enumerate(pnames[: len(rt["factors"])]):
+            for c, spread_name in enumerate(pnames[: len(rt["factors"])]):
                 fac, fac_raw, sd_c = rt["factors"][c], rt["factors_raw"][c], rt["between_tightening_sd_relative_by_component"][c]
-                if pname == "stribeck_speed_rpm":
+                if spread_name == "stribeck_speed_rpm":
                     fac, fac_raw = np.exp(fac - 1.0), np.exp(np.clip(fac_raw - 1.0, -50.0, 50.0))
-                eff.parameters_spread[pname] = spread_summary(eff.parameters[pname], fac, fac_raw, sd_c, bool(refinement["significant"]))
-                per_tightening_constants[f"{model[key].name}_{pname}"] = float(eff.parameters[pname]["value"]) * fac
+                eff.parameters_spread[spread_name] = spread_summary(eff.parameters[spread_name], fac, fac_raw, sd_c, bool(refinement["significant"]))
+                per_tightening_constants[f"{model[key].name}_{spread_name}"] = float(eff.parameters[spread_name]["value"]) * fac
     white = _whiteness(s, final.resid)
     # the spectral search again with the model's periodic terms taken out of the long stretch:
     # a significant peak left is a periodicity that no candidate explains

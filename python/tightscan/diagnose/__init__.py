@@ -622,50 +622,6 @@ def _diagnose(
         lag_forms[key] = {"extension_gain": test, "first_order_tau_ms": model[key].parameters(current, current_idx[key]).get("tau_ms"), "mean_lag_ms": extended.parameters(fit_ext, idx_ext[key]).get("tau_ms"), "kept": test["significant"]}
         if test["significant"]:
             model, current, current_idx = trial, fit_ext, idx_ext
-    # the form of a speed law: the Stribeck curve (a friction minimum between static friction
-    # and the viscous rise, which neither the logarithmic nor the linear law has) or the
-    # logarithmic law with an offset speed, ln(1 + v / v0), replaces the law the loop named
-    # when, at its best shape parameters on the grid, it passes the loop's gain test against
-    # that law at alpha over the grid (Bonferroni)
-    speed_forms: dict[str, Any] = {}
-    for key, held in list(model.items()):
-        if held.name != "speed_dependent_friction":
-            continue
-        tau_hint = _hints(model, current, current_idx).get("tau_s", 0.0)
-        grid = speed_law_forms(s, eng, current, declared, key, build + 1, tau_hint)
-        build += len(grid) + 1
-        if s.omega_raw is not None:
-            # and with the speed channel as recorded (a clean channel keeps the corners of a
-            # pause and of a program step that the smoothing rounds off, where a Stribeck law
-            # is steepest)
-            s_raw = dataclasses.replace(s, omega=s.omega_raw)
-            raw_grid = speed_law_forms(s_raw, eng, current, declared, key, build + 1, tau_hint)
-            for cand in raw_grid:
-                cand.info["speed_source"] = "speed channel as recorded"
-            grid += raw_grid
-            build += len(raw_grid) + 1
-        profile: list[dict[str, Any]] = []
-        best_form: tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term] | None = None
-        for cand in grid:
-            trial = {k: (cand if k == key else t) for k, t in model.items()}
-            fit_c, idx_c = evaluate_with(trial, None)
-            shape = {k: v for k, v in cand.info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "offset_speed_rpm", "speed_source")}
-            profile.append(shape | {"rmse": fit_c.rmse})
-            if best_form is None or fit_c.rmse < best_form[0].rmse:
-                best_form = (fit_c, idx_c, trial, cand)
-        if best_form is None:
-            continue
-        test = _gain_test(current, best_form[0], alpha / len(grid), min_gain)
-        speed_forms[key] = {
-            "law_named": held.info.get("law"),
-            "best_other_form": best_form[3].info.get("law"),
-            "its_gain_over_the_law_named": test,
-            "kept": test["significant"],
-            "bonferroni_alpha": alpha / len(grid),
-            "grid": profile,
-        }
-        if test["significant"]:
-            current, current_idx, model = best_form[0], best_form[1], best_form[2]
     # identifiability of the parameters of a speed law and of an inertia: estimated again with
     # the speed channel as recorded and its backward difference instead of the smoothed speed
     # and acceleration. Where a tool program feeds the measured torque back into the speed (a
@@ -710,6 +666,48 @@ def _diagnose(
             }
             if use_raw:
                 model, current, current_idx = trial, fit_raw, idx_raw
+    # the form of a speed law: the Stribeck curve (a friction minimum between static friction
+    # and the viscous rise, which neither the logarithmic nor the linear law has) or the
+    # logarithmic law with an offset speed, ln(1 + v / v0), replaces the law the loop named
+    # when, at its best shape parameters on the grid, it passes the loop's gain test against
+    # that law at alpha over the grid (Bonferroni)
+    speed_forms: dict[str, Any] = {}
+    for key, held in list(model.items()):
+        if held.name != "speed_dependent_friction":
+            continue
+        tau_hint = _hints(model, current, current_idx).get("tau_s", 0.0)
+        # with the speed the law's estimator check chose: the channel as recorded where it
+        # predicts better (it keeps the corners of a pause and of a program step that the
+        # smoothing rounds off, where a Stribeck law is steepest)
+        raw = key in estimator_check and estimator_check[key]["model_uses"] == "raw channel" and s.omega_raw is not None
+        grid = speed_law_forms(dataclasses.replace(s, omega=s.omega_raw) if raw else s, eng, current, declared, key, build + 1, tau_hint)
+        build += len(grid) + 1
+        for cand in grid:
+            if raw:
+                cand.info["speed_source"] = "speed channel as recorded"
+
+        profile: list[dict[str, Any]] = []
+        best_form: tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term] | None = None
+        for cand in grid:
+            trial = {k: (cand if k == key else t) for k, t in model.items()}
+            fit_c, idx_c = evaluate_with(trial, None)
+            shape = {k: v for k, v in cand.info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "offset_speed_rpm", "speed_source")}
+            profile.append(shape | {"rmse": fit_c.rmse})
+            if best_form is None or fit_c.rmse < best_form[0].rmse:
+                best_form = (fit_c, idx_c, trial, cand)
+        if best_form is None:
+            continue
+        test = _gain_test(current, best_form[0], alpha / len(grid), min_gain)
+        speed_forms[key] = {
+            "law_named": held.info.get("law"),
+            "best_other_form": best_form[3].info.get("law"),
+            "its_gain_over_the_law_named": test,
+            "kept": test["significant"],
+            "bonferroni_alpha": alpha / len(grid),
+            "grid": profile,
+        }
+        if test["significant"]:
+            current, current_idx, model = best_form[0], best_form[1], best_form[2]
     # the constant of each named effect per tightening (random effects around the pooled value,
     # out of sample): the reported parameter stays the pooled one, its spread is reported beside
     pooled_fit = current

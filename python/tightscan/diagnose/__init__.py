@@ -144,6 +144,27 @@ def diagnose(
     ``range_over_speed_estimates`` says when the two differ by more than 15 % (a program that
     feeds the torque back into the speed).
 
+    Per-tightening constants (``details["per_tightening_constants"]``, each effect's
+    ``parameters_spread``): a filter, an inertia or a lubricant differs between tools, spindles
+    and screws, so after the loop each named effect's constant is refined per tightening -- a
+    factor on its pooled contribution (for a lag, along the derivative of its low-pass path in
+    tau; for a Stribeck law, its static and viscous parts and its Stribeck speed apart), shrunk
+    towards the pooled value by random effects (DerSimonian-Laird). ``parameters`` keep the
+    pooled values; ``parameters_spread`` gives the between-tightening sd and quantiles, and the
+    per-tightening table a column per constant. ``rmse_after`` uses the per-tightening
+    constants only when they predict better out of sample (pooled coefficients and the
+    between-tightening variance from the other folds, each tightening's factor from one block of
+    its samples predicting the other) by the one-sided test at ``alpha``. During the loop a
+    candidate must also keep its gain when the constants of the effects already in are refined
+    so (their spread is not a further effect).
+
+    Speed-law forms (``evidence["speed_law_form"]``, ``parameters["form"]``): once
+    ``speed_dependent_friction`` is named (logarithmic or linear), the Stribeck form
+    ``mu_c + (mu_s - mu_c) exp(-(v / v_s)^delta) + k_v v`` (``s_eff``, ``k_eff``,
+    ``elasticity_at_reference``, each with ``se`` and ``se_folds``) and the logarithmic law with
+    an offset speed ``ln(1 + v / v0)`` are fitted at each shape of a grid; the best replaces the
+    named law when it passes the gain test against it at ``alpha`` over the grid.
+
     Grouping factors (``details["grouping_factors"]``): ``grouping_factors`` names the
     categorical columns to test (``"auto"``: string, dictionary and boolean columns, and integer
     columns with few levels or a telling name such as ``spindle``, with 2 to 50 levels, that are

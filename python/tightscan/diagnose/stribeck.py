@@ -1,5 +1,8 @@
-"""The Stribeck form of ``speed_dependent_friction`` (issue 12): friction that falls from its
-static level as the speed rises past a Stribeck speed, then rises again with the viscous part,
+"""Other forms of ``speed_dependent_friction`` (issue 12), tried once the loop has named a
+logarithmic or linear speed law.
+
+The Stribeck form: friction that falls from its static level as the speed rises past a
+Stribeck speed, then rises again with the viscous part,
 
     mu(v) = mu_c + (mu_s - mu_c) exp(-(v / v_s)^delta) + k_v v,
 
@@ -10,16 +13,19 @@ median speed of the elastic windows) the torque above the prevailing level is
 
     T - T_p = (T0 - T_p) (1 + s_eff (E(v) - E(v_ref)) + k_eff (v / v_ref - 1)),  E(v) = exp(-(v / v_s)^delta),
 
-linear in (s_eff, k_eff) given (v_s, delta): two global columns. (v_s, delta) are chosen on a
-grid by the loop's out-of-sample RMSE, and the form replaces the law in the model only when it
-passes the loop's gain test against that law at ``alpha`` over the grid (Bonferroni), so a
-logarithmic or linear law is kept where the extra shape does not predict better.
+linear in (s_eff, k_eff) given (v_s, delta): two global columns. The logarithmic law with an
+offset speed, ln(1 + v / v0), of which ln(v / v_ref) is the limit v0 -> 0: one column.
+
+The shapes (v_s, delta; v0) are chosen on a grid by the loop's out-of-sample RMSE, and the best
+replaces the named law only when it passes the loop's gain test against that law at ``alpha``
+over the law families and speed sources (Bonferroni), so a logarithmic or linear law is kept
+where the extra shape does not predict better.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -43,14 +49,12 @@ def speed_law_forms(
     key: str,
     tag: int,
     tau_lp: float,
-    stribeck: Sequence[tuple[float, float]] | None = None,
-    log_offsets: Sequence[float] | None = None,
 ) -> list[_Term]:
-    """One candidate term per (v_s, delta) of the grid whose decay varies inside the elastic
-    windows, built from the fitted declared torque as the other speed laws are (never from the
-    measured torque of the sample), tagged ``tag``, ``tag + 1`` ... ``tau_lp`` > 0: the columns
-    pass the channel's low-pass. ``stribeck`` ((v_s [rpm], delta) pairs) and ``log_offsets``
-    (v0 [rpm]): other shapes than the grid's (both given: only those)."""
+    """One candidate term per (v_s, delta) of the Stribeck grid whose decay varies inside the
+    elastic windows, and one per offset speed v0 of the logarithmic law, built from the fitted
+    declared torque as the other speed laws are (never from the measured torque of the
+    sample), tagged ``tag``, ``tag + 1`` ... ``tau_lp`` > 0: the columns pass the channel's
+    low-pass."""
     if s.omega is None:
         return []
     g = eng.g
@@ -69,9 +73,7 @@ def speed_law_forms(
     viscous = fr * (om / ref - 1.0)
     out: list[_Term] = []
     description = EFFECT_NAMES["speed_dependent_friction"] + "; Stribeck form: static friction falling to a minimum, then viscous"
-    explicit = stribeck is not None or log_offsets is not None
-    shapes = list(stribeck or []) if explicit else [(v, dl) for v in STRIBECK_SPEEDS_RPM for dl in STRIBECK_EXPONENTS]
-    for v_s_rpm, delta in shapes:
+    for v_s_rpm, delta in [(v, dl) for v in STRIBECK_SPEEDS_RPM for dl in STRIBECK_EXPONENTS]:
         v_s = 6.0 * v_s_rpm
         decay = np.exp(-((om / v_s) ** delta))
         e_ref = math.exp(-((ref / v_s) ** delta))
@@ -122,7 +124,7 @@ def speed_law_forms(
     # the logarithmic law with an offset speed, ln(1 + v / v0): ln(v / v_ref) is its limit
     # v0 -> 0, and it flattens below v0 (a lubricant film that does not thin at standstill)
     description_log = EFFECT_NAMES["speed_dependent_friction"].replace("ln(v / v_ref)", "ln(1 + v / v0)")
-    for v0_rpm in list(log_offsets or []) if explicit else LOG_OFFSET_SPEEDS_RPM:
+    for v0_rpm in LOG_OFFSET_SPEEDS_RPM:
         v0 = 6.0 * v0_rpm
         # normalised so that the coefficient is the elasticity at v_ref, as a_eff of ln(v / v_ref)
         col = fr * (np.log1p(om / v0) - math.log1p(ref / v0)) * (ref + v0) / ref

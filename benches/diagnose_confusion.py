@@ -215,7 +215,7 @@ def independent_cells(strategies: tuple[str, ...], magnitudes: tuple[str, ...], 
                 cells.append(Cell("independent", "dynamics", form, st, mag, "channel_delay", _ig_make(st, (eff,), clamp), rec, _identifiable("dynamics", st)))
 
     def rec_speed(p: dict[str, Any], t: pa.Table) -> tuple[str, float] | None:
-        key = "a_eff" if "a_eff" in p else "b_eff" if "b_eff" in p else None
+        key = "a_eff" if "a_eff" in p else "b_eff" if "b_eff" in p else "elasticity_at_reference" if "elasticity_at_reference" in p else None
         return None if key is None else (key, _speed_elasticity(p, t))
 
     speed_mags = {"small": (0.02, 0.05), "large": (0.08, 0.15)}

@@ -124,14 +124,7 @@ def test_clean_sets_claim_nothing(strategy: str, seed: int) -> None:
 @pytest.mark.parametrize(
     "effect",
     [
-        pytest.param(
-            ig.TorqueDynamics(form="lowpass2", natural_freq_hz=(60.0, 120.0), damping=0.7),
-            marks=pytest.mark.xfail(
-                reason="known (issue 12): since the rundown stretch stops before the foot of a lagged rise, the speed law keeps a 6 % gain "
-                "after a second-order filter at 150 tightenings (seed 1) with the lag's extension in; at 300 tightenings (the bench) it does not",
-                strict=True,
-            ),
-        ),
+        ig.TorqueDynamics(form="lowpass2", natural_freq_hz=(60.0, 120.0), damping=0.7),
         ig.TorqueDynamics(form="delay", delay_s=(0.002, 0.004)),
     ],
     ids=["lowpass2", "delay"],

@@ -62,6 +62,11 @@ from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
+from .stribeck import speed_law_forms
+from .refine import REFINABLE, refine_per_tightening, spread_summary
+
+#: the parameter of each effect whose per-tightening spread is reported (the first present)
+_PRIMARY_PARAMETER = ("tau_ms", "J_kg_m2", "a_eff", "b_eff", "elasticity_at_reference", "a_prevailing", "kappa")
 
 __all__ = ["diagnose", "Diagnosis", "Effect", "write_report", "load_table", "EFFECT_NAMES"]
 
@@ -138,6 +143,27 @@ def diagnose(
     acceleration); the model keeps the better out of sample, and ``identifiable: false`` with
     ``range_over_speed_estimates`` says when the two differ by more than 15 % (a program that
     feeds the torque back into the speed).
+
+    Per-tightening constants (``details["per_tightening_constants"]``, each effect's
+    ``parameters_spread``): a filter, an inertia or a lubricant differs between tools, spindles
+    and screws, so after the loop each named effect's constant is refined per tightening -- a
+    factor on its pooled contribution (for a lag, along the derivative of its low-pass path in
+    tau; for a Stribeck law, its static and viscous parts and its Stribeck speed apart), shrunk
+    towards the pooled value by random effects (DerSimonian-Laird). ``parameters`` keep the
+    pooled values; ``parameters_spread`` gives the between-tightening sd and quantiles, and the
+    per-tightening table a column per constant. ``rmse_after`` uses the per-tightening
+    constants only when they predict better out of sample (pooled coefficients and the
+    between-tightening variance from the other folds, each tightening's factor from one block of
+    its samples predicting the other) by the one-sided test at ``alpha``. During the loop a
+    candidate must also keep its gain when the constants of the effects already in are refined
+    so (their spread is not a further effect).
+
+    Speed-law forms (``evidence["speed_law_form"]``, ``parameters["form"]``): once
+    ``speed_dependent_friction`` is named (logarithmic or linear), the Stribeck form
+    ``mu_c + (mu_s - mu_c) exp(-(v / v_s)^delta) + k_v v`` (``s_eff``, ``k_eff``,
+    ``elasticity_at_reference``, each with ``se`` and ``se_folds``) and the logarithmic law with
+    an offset speed ``ln(1 + v / v0)`` are fitted at each shape of a grid; the best replaces the
+    named law when it passes the gain test against it at ``alpha`` over the grid.
 
     Grouping factors (``details["grouping_factors"]``): ``grouping_factors`` names the
     categorical columns to test (``"auto"``: string, dictionary and boolean columns, and integer
@@ -259,6 +285,46 @@ def _diagnose(
         pc, pk, zn, zc, idx = assemble(both)
         return eng.evaluate(pk, pc, zn, zc), idx
 
+    build = 0  # a counter that tags each rebuild of the candidates (the engine caches by it)
+
+    def _refine_model(model_: dict[str, _Term], fit_: _Fit, idx_: dict[str, list[int]], keys: set[str] | None = None) -> dict[str, Any] | None:
+        """The named effects' constants refined per tightening (``refine.py``) in the model
+        ``model_`` fitted as ``fit_``: one factor per law, a Stribeck law's static and viscous
+        parts each their own; a lag along the derivative of its low-pass path in tau."""
+        nonlocal build
+        comps = {
+            key: ([[i] for i in idx_[key]] if t.info.get("law") == "stribeck" else [idx_[key]])
+            for key, t in model_.items()
+            if not t.per_tightening and t.name in REFINABLE and key in idx_ and (keys is None or key in keys)
+        }
+        if not comps:
+            return None
+        pc_, _pk_, _zn_, zc_, _ = assemble(model_)
+        directions: dict[str, list[F64]] = {}
+        for key in comps:
+            held = model_[key]
+            if held.info.get("law") == "stribeck" and held.extension and len(idx_[key]) == 2:
+                # static part, viscous part, and the Stribeck speed (its derivative, times s_eff)
+                b_static, b_viscous = (float(fit_.beta[i]) for i in idx_[key])
+                directions[key] = [held.columns[0] * b_static, held.columns[1] * b_viscous, held.extension[0] * b_static]
+                continue
+            if held.name != "channel_delay":
+                continue
+            # the lag's contribution is the low-pass path of the torque at tau, nonlinear in
+            # tau: its derivative by the relative change of tau, a central difference
+            tau_now = float(fit_.beta[idx_[key][0]])
+            if not 0 < tau_now < 1.0:
+                continue
+            paths = []
+            for step in (1.1, 1 / 1.1):
+                build += 1
+                lag_at = _candidates(s, eng, fit_, declared, build, _model_periods(model_), {"tau_s": tau_now * step})[0].get(key)
+                if lag_at is not None:
+                    paths.append(tau_now * step * lag_at.columns[0])
+            if len(paths) == 2:
+                directions[key] = [(paths[0] - paths[1]) / (1.1 - 1 / 1.1)]
+        return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions)
+
     model: dict[str, _Term] = {}
     base, _ = evaluate_with(model, None)
     # weights: 1 / sigma_j^2 of the declared fit (robust to smooth structure: first differences)
@@ -286,7 +352,6 @@ def _diagnose(
     misfits: list[dict[str, Any]] = []
     misfit_out: set[str] = set()  # candidates that only took up the form misfit of an effect in
     partial: dict[str, Any] = {}
-    build = 0
     for round_no in range(max_effects + 1):
         bar.advance()
         build += 1
@@ -449,6 +514,26 @@ def _diagnose(
                     "round": round_no + 1,
                 }
                 break
+        if misfit is None and not term.per_tightening:
+            # ... and when the constants of the effects in the model may differ between
+            # tightenings (a filter, an inertia, a lubricant per tool or screw): structure that
+            # per-tightening constants take up is their spread, not a further effect (under a
+            # hold-down program a speed law follows a lag's per-tightening error closely)
+            held_refined = _refine_model(model, current, current_idx)
+            if held_refined is not None:
+                with_term, with_idx = evaluate_with(model, term)
+                term_refined = _refine_model(dict(model) | {term.key: term}, with_term, with_idx, keys=set(held_refined["terms"]))
+                if term_refined is not None:
+                    keep = _gain_test(held_refined["fit"], term_refined["fit"], alpha / m, min_gain)
+                    if not keep["significant"]:
+                        misfit = {
+                            "candidate": term.name,
+                            "effect": ", ".join(model[k].name for k in held_refined["terms"]),
+                            "kind": "per-tightening constants of the effects in the model",
+                            "extension_gain": _gain_test(current, held_refined["fit"], alpha / m, min_gain),
+                            "candidate_gain_with_extension_in": keep,
+                            "round": round_no + 1,
+                        }
         if misfit is not None:
             misfits.append(misfit)
             misfit_out.add(term.name)
@@ -602,10 +687,68 @@ def _diagnose(
             }
             if use_raw:
                 model, current, current_idx = trial, fit_raw, idx_raw
+    # the form of a speed law: the Stribeck curve (a friction minimum between static friction
+    # and the viscous rise, which neither the logarithmic nor the linear law has) or the
+    # logarithmic law with an offset speed, ln(1 + v / v0), replaces the law the loop named
+    # when, at its best shape parameters on the grid, it passes the loop's gain test against
+    # that law at alpha over the grid (Bonferroni)
+    speed_forms: dict[str, Any] = {}
+    for key, held in list(model.items()):
+        if held.name != "speed_dependent_friction":
+            continue
+        tau_hint = _hints(model, current, current_idx).get("tau_s", 0.0)
+        grid = speed_law_forms(s, eng, current, declared, key, build + 1, tau_hint)
+        build += len(grid) + 1
+        sources = 1
+        if s.omega_raw is not None:
+            # and with the speed channel as recorded (it keeps the corners of a pause and of a
+            # program step that the smoothing rounds off, where a Stribeck law is steepest)
+            raw_grid = speed_law_forms(dataclasses.replace(s, omega=s.omega_raw), eng, current, declared, key, build + 1, tau_hint)
+            build += len(raw_grid) + 1
+            for cand in raw_grid:
+                cand.info["speed_source"] = "speed channel as recorded"
+            grid += raw_grid
+            sources = 2
+        # the test of the best shape: Bonferroni over the law families and speed sources. The
+        # shape within a family (v_s and delta, or v0) is a fitted parameter, chosen by the
+        # same out-of-sample RMSE; its optimism, one shape among neighbouring ones that fit
+        # nearly alike, is small against a gain test over hundreds of tightenings
+        families = len({c.info.get("law") for c in grid}) * sources
+
+        profile: list[dict[str, Any]] = []
+        best_form: tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term] | None = None
+        for cand in grid:
+            trial = {k: (cand if k == key else t) for k, t in model.items()}
+            fit_c, idx_c = evaluate_with(trial, None)
+            shape = {k: v for k, v in cand.info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "offset_speed_rpm", "speed_source")}
+            profile.append(shape | {"rmse": fit_c.rmse})
+            if best_form is None or fit_c.rmse < best_form[0].rmse:
+                best_form = (fit_c, idx_c, trial, cand)
+        if best_form is None:
+            continue
+        test = _gain_test(current, best_form[0], alpha / max(families, 1), min_gain)
+        speed_forms[key] = {
+            "law_named": held.info.get("law"),
+            "best_other_form": best_form[3].info.get("law"),
+            "its_gain_over_the_law_named": test,
+            "kept": test["significant"],
+            "bonferroni_alpha": alpha / max(families, 1),
+            "shapes_tried": len(grid),
+            "grid": profile,
+        }
+        if test["significant"]:
+            current, current_idx, model = best_form[0], best_form[1], best_form[2]
+    # the constant of each named effect per tightening (random effects around the pooled value,
+    # out of sample): the reported parameter stays the pooled one, its spread is reported beside
+    pooled_fit = current
+    refinement = _refine_model(model, current, current_idx)
+    if refinement is not None and refinement["significant"]:
+        current = refinement["fit"]
     final = current
-    # parameters of the added effects from the final model
+    # parameters of the added effects from the final model (the pooled coefficients)
+    per_tightening_constants: dict[str, F64] = {}
     for eff, key in zip(effects, list(model)):
-        eff.parameters = model[key].parameters(final, current_idx[key])
+        eff.parameters = model[key].parameters(pooled_fit, current_idx[key])
         if key in lag_forms:
             lf = lag_forms[key]
             mean_lag = lf["mean_lag_ms"]
@@ -618,6 +761,9 @@ def _diagnose(
                 else "first order or not told apart from it; tau_ms is the mean lag of the extended form (consistent for any form), first_order_tau_ms the first-order fit"
             )
             eff.evidence["lag_form"] = lf
+        if key in speed_forms:
+            eff.evidence["speed_law_form"] = speed_forms[key]
+            eff.parameters["form"] = str(model[key].info.get("law"))
         if key in estimator_check:
             chk = estimator_check[key]
             eff.evidence["estimator_check"] = chk
@@ -632,6 +778,21 @@ def _diagnose(
                     "and its backward difference as with the smoothed speed and acceleration (a program that feeds the torque back into "
                     "the speed: the acceleration the transducer feels is faster than the sampling resolves); the effect is named, its size is not pinned"
                 )
+        if refinement is not None and key in refinement["terms"]:
+            rt = refinement["terms"][key]
+            # the parameter each factor scales: the law's constant, or a Stribeck law's static
+            # and viscous coefficients and its Stribeck speed (whose component is the change of
+            # ln v_s: the factor on v_s is exp of it)
+            if model[key].info.get("law") == "stribeck":
+                pnames: list[str] = ["s_eff", "k_eff", "stribeck_speed_rpm"]
+            else:
+                pnames = [n for n in _PRIMARY_PARAMETER if isinstance(eff.parameters.get(n), dict)][:1]
+            for c, spread_name in enumerate(pnames[: len(rt["factors"])]):
+                fac, fac_raw, sd_c = rt["factors"][c], rt["factors_raw"][c], rt["between_tightening_sd_relative_by_component"][c]
+                if spread_name == "stribeck_speed_rpm":
+                    fac, fac_raw = np.exp(fac - 1.0), np.exp(np.clip(fac_raw - 1.0, -50.0, 50.0))
+                eff.parameters_spread[spread_name] = spread_summary(eff.parameters[spread_name], fac, fac_raw, sd_c, bool(refinement["significant"]))
+                per_tightening_constants[f"{model[key].name}_{spread_name}"] = float(eff.parameters[spread_name]["value"]) * fac
     white = _whiteness(s, final.resid)
     # the spectral search again with the model's periodic terms taken out of the long stretch:
     # a significant peak left is a periodicity that no candidate explains
@@ -682,6 +843,8 @@ def _diagnose(
             "prevailing_torque": pa.array(np.where(g.sum(rd) > 0, g.sum((s.y - final.resid) * rd) / np.maximum(g.sum(rd), 1), np.nan)),
             "noise_sd": pa.array(sig_t),
         }
+        # each named effect's constant per tightening (shrunk towards the pooled value)
+        | {name: pa.array(v) for name, v in per_tightening_constants.items()}
     )
     rb, ra = np.sqrt(mse_before_t), np.sqrt(final.mse_t)
     details: dict[str, Any] = {
@@ -708,6 +871,7 @@ def _diagnose(
         },
         "noise_floor_estimate": float(np.sqrt(np.sum(g.count * sig_t**2) / np.sum(g.count))),
         "whiteness": white,
+        "per_tightening_constants": _refinement_details(refinement, pooled_fit.rmse, final.rmse, model),
         "collinearity": collinearity,
         "ties": ties,
         "form_misfit": misfits,
@@ -851,6 +1015,28 @@ def _window(search: dict[str, Any], domain: str) -> float:
     ax = search.get("axes", {}).get(domain, {})
     w = ax.get("window_deg" if domain == "angle" else "window_s")
     return float(w) if w else float("inf")
+
+
+def _refinement_details(refinement: dict[str, Any] | None, rmse_pooled: float, rmse_after: float, model: dict[str, _Term]) -> dict[str, Any]:
+    """``details["per_tightening_constants"]``: whether the named effects' constants were refined
+    per tightening, the out-of-sample RMSE with pooled and with per-tightening constants, and
+    the test that decided which one ``rmse_after`` is."""
+    if refinement is None:
+        return {"refined": [], "rmse_pooled_constants": rmse_pooled, "rmse_after": rmse_after, "note": "no named effect with a constant to refine"}
+    return {
+        "refined": [model[k].name + (f" ({model[k].info['law']} law)" if model[k].info.get("law") else "") for k in refinement["terms"]],
+        "rmse_pooled_constants": refinement["rmse_pooled_constants"],
+        "rmse_per_tightening_constants": refinement["rmse_per_tightening_constants"],
+        "rmse_gain": refinement["rmse_gain"],
+        "p_value": refinement["p_value"],
+        "used_in_rmse_after": refinement["significant"],
+        "rmse_after": rmse_after,
+        "protocol": (
+            "out of sample: pooled coefficients fitted without the tightening's fold, the between-tightening variance "
+            "without that fold, each tightening's factor on one alternate block of its samples predicting the other; "
+            "used in rmse_after when its per-tightening improvement passes the one-sided t test at alpha"
+        ),
+    }
 
 
 def _no_parameters(fit: _Fit, idx: list[int]) -> dict[str, Any]:

@@ -60,6 +60,8 @@ class _Fit:
     pcoef: F64  # per-tightening coefficients (G, p) of the in-sample fit
     pcov_diag: F64  # per-tightening coefficient variances (G, p)
     sigma_t: F64  # per-tightening in-sample residual sd
+    #: sandwich covariance of the global coefficients (for parameters derived from several)
+    cov: F64 | None = None
 
 
 class _Engine:
@@ -141,7 +143,7 @@ class _Engine:
             Ainv = np.linalg.inv(At + ridge)
             score = c - np.einsum("gij,j->gi", A, beta)
             meat = score.T @ score
-            cov = Ainv @ meat @ Ainv
+            cov: F64 = Ainv @ meat @ Ainv
             se = np.sqrt(np.maximum(np.diag(cov), 0.0))
             bf = np.empty((self.n_folds, k))
             for f in range(self.n_folds):
@@ -156,6 +158,7 @@ class _Engine:
                 ytil -= zcols[i] * beta[i]
         else:
             beta = se = np.zeros(0)
+            cov = np.zeros((0, 0))
             bf = np.zeros((self.n_folds, 0))
             e = ey
             resid = ry
@@ -175,6 +178,7 @@ class _Engine:
             pcoef=coef[:, :, 0],
             pcov_diag=inv_diag * sig2[:, None],
             sigma_t=np.sqrt(sig2),
+            cov=cov,
         )
 
 

@@ -51,9 +51,12 @@ class Effect:
     #: the effects this claim names: one, or several the data cannot tell apart (a tie; then
     #: ``name`` joins them with " or " and none of them is named alone)
     names: list[str] = field(default_factory=list)
+    #: how the effect's constant varies between tightenings, by parameter name (random effects
+    #: around the pooled value in ``parameters``; empty when not refined): see ``diagnose.refine``
+    parameters_spread: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "name": self.name,
             "description": self.description,
             "level": self.level,
@@ -64,6 +67,9 @@ class Effect:
             "evidence": self.evidence,
             "names": self.names or [self.name],
         }
+        if self.parameters_spread:
+            out["parameters_spread"] = self.parameters_spread
+        return out
 
 
 @dataclass

@@ -71,11 +71,9 @@ pub(super) struct KdeRow {
 #[derive(Clone, Copy, Debug)]
 pub(super) struct BreakRow {
     pub(super) alarm: bool,
-    /// The scan's statistic, critical value and p-value; `None` where the window is too short
-    /// for the scan and only the end and start tests ran.
-    pub(super) statistic: Option<f64>,
-    pub(super) critical_value: Option<f64>,
-    pub(super) p_value: Option<f64>,
+    pub(super) statistic: f64,
+    pub(super) critical_value: f64,
+    pub(super) p_value: f64,
     pub(super) tail_p_value: Option<f64>,
     pub(super) head_p_value: Option<f64>,
     pub(super) change_index: usize,

@@ -31,22 +31,24 @@ Strategy = Literal["CST", "HDT"]
 # catch a regression of a few points, not the sampling noise of a fixed seed (which is none:
 # the curves are the same every run) or of a harmless change of the rule (binomial sd of a
 # recall near 0.9 over ~200 curves is about 2 points).
-# Measured with the union-bound rule (the calibrated one it replaced in brackets).
+# Measured with the union-bound rule and the break detector's start test (before the start
+# test in brackets: it finds changes in the window's first samples, which the scan cannot
+# isolate; most of HDT's misses were there).
 RECALL_FLOOR = {
-    ("CST", "large"): 0.97,  # measured 1.000 (200 of 200 curves)
-    ("CST", "small"): 0.80,  # measured 0.840 (0.850)
-    ("HDT", "large"): 0.86,  # measured 0.900 (0.910)
-    ("HDT", "small"): 0.69,  # measured 0.725 (0.745)
+    ("CST", "large"): 0.97,  # measured 1.000 (1.000, 200 of 200 curves)
+    ("CST", "small"): 0.80,  # measured 0.850 (0.840)
+    ("HDT", "large"): 0.95,  # measured 0.985 (0.900)
+    ("HDT", "small"): 0.75,  # measured 0.790 (0.725)
 }
 # Incipient drifts (friction growing linearly from the onset to the end of the elastic zone).
 # Before the misfit guard knew the drift's shape (a line that turns at the onset, by a kink
 # and a parabola, engine/analysis/breaks.rs `curvature`) it called most drifts starting in the
 # window's first half `model_misfit`: recall about 0.6 whatever the size.
 INCIPIENT_FLOOR = {
-    ("CST", "large"): 0.93,  # measured 0.965
-    ("CST", "small"): 0.83,  # measured 0.870
-    ("HDT", "large"): 0.92,  # measured 0.955
-    ("HDT", "small"): 0.73,  # measured 0.775
+    ("CST", "large"): 0.91,  # measured 0.945 (0.965 before the start test)
+    ("CST", "small"): 0.85,  # measured 0.900 (0.870)
+    ("HDT", "large"): 0.93,  # measured 0.970 (0.955)
+    ("HDT", "small"): 0.80,  # measured 0.845 (0.775)
 }
 BANDS = {"large": (0.15, 0.45), "small": (0.03, 0.15)}
 
@@ -96,10 +98,38 @@ def clean_alarms() -> np.ndarray:
 def test_false_alarms_of_the_default_rule_are_within_binomial_tolerance_of_alpha(clean_alarms: np.ndarray) -> None:
     # Within 3 binomial sd of alpha over 3,000 clean curves: [0.46 %, 1.54 %], 14 to 46 alarms.
     # A rule alarming on everything (or on a tenth of the curves) fails the upper bound; one
-    # that never alarms fails the lower. Measured 0.97 % at these seeds (CST 1.07 %, HDT
-    # 0.87 %) with the union-bound rule; 1.47 % (CST 1.80 %, HDT 1.13 %) with the rule
-    # calibrated to the built-in simulator that it replaced.
+    # that never alarms fails the lower. Measured 0.80 % at these seeds (CST 0.87 %, HDT
+    # 0.73 %) with the union-bound rule and the start test; 0.97 % before the start test (the
+    # scan's share of alpha went from 90 % to 80 % of the break detector's); 1.47 % (CST
+    # 1.80 %, HDT 1.13 %) with the rule calibrated to the built-in simulator it replaced.
     n = clean_alarms.size
     sd = math.sqrt(ALPHA * (1 - ALPHA) / n)
     rate = float(clean_alarms.mean())
     assert ALPHA - 3 * sd <= rate <= ALPHA + 3 * sd, f"false-alarm rate {rate:.4f} over {n} clean curves"
+
+
+def _early_or_late(strategy: Strategy, onset: tuple[float, float], seed: int, n: int, noise: ig.NoiseConfig | None = NOISE) -> pa.Table:
+    fault = ig.FaultConfig(kind="abrupt", magnitude=(0.15, 0.45), signed=True, acts_on="mix", onset_fraction=onset)
+    config = ig.GeneratorConfig(n=n, seed=seed, strategy=strategy, sample_rate_hz=2000.0, encoder_step_deg=0.1, fault=fault,
+                                **({"noise": noise} if noise is not None else {}))
+    return ig.generate(config)[0]
+
+
+def test_changes_in_the_window_first_samples_are_found_by_the_start_test() -> None:
+    """An abrupt change at a fifth to 0.3 of the elastic zone makes the torque jump by the clamp
+    force times the change: the jump is in the window's first samples (or carries the torque
+    across the window's start level), where the scan, held ten samples from the window's
+    start, cannot place a break. The start test (`break_head_fraction` of the break detector's
+    alpha) and the two samples the window keeps before its start level find them. Measured
+    at these seeds, 200 curves each: CST 1.000 (0.995 without the start test), HDT 0.980
+    (0.895); before either, HDT 0.715."""
+    for strategy, floor, ceiling in (("CST", 0.98, 1.0), ("HDT", 0.95, 0.93)):
+        curves = _early_or_late(strategy, (0.2, 0.3), 41, 200)
+        recall = float(_detected(curves).mean())
+        assert recall >= floor, f"{strategy}: recall {recall:.3f}"
+        if strategy == "HDT":
+            results = tightscan.detect_batch(curves, config={"alpha": ALPHA, "break_head_fraction": 0.0})
+            without = float(np.mean([bool(v) for v in results.column("change_detected").to_pylist()]))
+            assert without <= ceiling, f"{strategy}: recall without the start test {without:.3f}"
+            assert results.column("break_head_p_value").null_count == results.num_rows
+

@@ -101,11 +101,14 @@ class BreakConfig:
     The scan needs ten samples or more after a break, so the last samples up to the peak get a
     predictive (Chow) test of their own, with ``tail_fraction`` of ``alpha``: a large friction
     rise late in the curve makes the tool reach its target within a sample or two. 0 turns it
-    off."""
+    off. It also needs ten samples before a break, so the window's first samples get the same
+    test read backwards, with ``head_fraction`` of ``alpha``: an abrupt friction change early
+    in the window makes the torque jump by the clamp force times the change. 0 turns it off."""
 
     alpha: float | None = _DEFAULTS["break_alpha"]
     min_jump_steps: float = _DEFAULTS["break_min_jump_steps"]
     tail_fraction: float = _DEFAULTS["break_tail_fraction"]
+    head_fraction: float = _DEFAULTS["break_head_fraction"]
 
 
 @dataclass(frozen=True)
@@ -195,6 +198,7 @@ class DetectConfig:
             "break_alpha": self.breaks.alpha,
             "break_min_jump_steps": self.breaks.min_jump_steps,
             "break_tail_fraction": self.breaks.tail_fraction,
+            "break_head_fraction": self.breaks.head_fraction,
             "l1_gamma": self.l1.gamma,
             "l1_alpha": self.l1.alpha,
             "alpha": self.decision.alpha,

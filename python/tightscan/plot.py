@@ -383,7 +383,8 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any, *, config: Con
         ax_break.set_xlabel("angle [deg]")
         ax_break.set_ylabel("likelihood ratio")
         verdict = "alarm" if b.scan_alarm else "significant, within an encoder step" if b.significant else "no alarm"
-        ax_break.set_title(verdict + ("; end test: alarm" if b.tail_alarm else ""), loc="right", fontsize=8)
+        ends = [name for name, fired in (("end", b.tail_alarm), ("start", b.head_alarm)) if fired]
+        ax_break.set_title(verdict + "".join(f"; {name} test: alarm" for name in ends), loc="right", fontsize=8)
         _legend(ax_break, fontsize=7)
     else:
         _not_run(ax_break, "the break scan", status)

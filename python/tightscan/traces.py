@@ -75,7 +75,8 @@ class BreakTrace:
     would report). ``critical_value`` is the table's (white noise) at the scan's alpha;
     ``decision_value`` the level the profile must pass, higher where the noise model's
     uncertainty widens the test. ``significant``: the maximum passed it; ``scan_alarm``: and its
-    jump exceeded an encoder step; ``tail_alarm``: the end-of-window test fired instead."""
+    jump exceeded an encoder step; ``tail_alarm``, ``head_alarm``: the end-of-window or
+    start-of-window test fired."""
 
     angle: F64
     lr: F64
@@ -84,6 +85,7 @@ class BreakTrace:
     significant: bool
     scan_alarm: bool
     tail_alarm: bool
+    head_alarm: bool
 
 
 @dataclass(frozen=True)
@@ -190,7 +192,7 @@ def detector_traces(curves: Any, tightening_id: Any, config: ConfigLike = None) 
         breaks=None
         if b is None
         else BreakTrace(
-            _array(b["angle"]), _array(b["lr"]), b["critical_value"], b["decision_value"], b["significant"], b["scan_alarm"], b["tail_alarm"]
+            _array(b["angle"]), _array(b["lr"]), b["critical_value"], b["decision_value"], b["significant"], b["scan_alarm"], b["tail_alarm"], b["head_alarm"]
         ),
         kde=None
         if k is None

@@ -93,6 +93,7 @@ fn detector_traces<'py>(
         c.set_item("significant", t.significant)?;
         c.set_item("scan_alarm", t.scan_alarm)?;
         c.set_item("tail_alarm", t.tail_alarm)?;
+        c.set_item("head_alarm", t.head_alarm)?;
         Ok(c)
     });
     d.set_item("breaks", breaks.transpose()?)?;

@@ -154,12 +154,19 @@ impl Detector {
         if !(0.0..1.0).contains(&tail_fraction) {
             return Err(TightscanError::parameter("break_tail_fraction", format!("must be in [0, 1), got {tail_fraction}")));
         }
-        let scan_alpha = break_alpha * (1.0 - tail_fraction);
+        let head_fraction = config.breaks.head_fraction;
+        if !(0.0..1.0).contains(&head_fraction) || head_fraction + tail_fraction >= 1.0 {
+            return Err(TightscanError::parameter(
+                "break_head_fraction",
+                format!("must be in [0, 1) and leave the scan a share (break_head_fraction + break_tail_fraction < 1), got {head_fraction}"),
+            ));
+        }
+        let scan_alpha = break_alpha * (1.0 - tail_fraction - head_fraction);
         if !(break_alpha <= 0.5 && scan_alpha >= 0.001) {
             return Err(TightscanError::parameter(
                 "break_alpha",
                 format!(
-                    "must be at most 0.5, and its scan share (1 - break_tail_fraction) at least 0.001 (the shipped table); \
+                    "must be at most 0.5, and its scan share (1 - break_tail_fraction - break_head_fraction) at least 0.001 (the shipped table); \
                      got {break_alpha}, scan share {scan_alpha}; raise alpha or give break_alpha"
                 ),
             ));

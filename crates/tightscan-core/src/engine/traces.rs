@@ -66,6 +66,8 @@ pub struct BreakTrace {
     pub scan_alarm: bool,
     /// Whether the end-of-window test raised the alarm.
     pub tail_alarm: bool,
+    /// Whether the start-of-window test raised the alarm.
+    pub head_alarm: bool,
 }
 
 /// Gaussian kernel densities of the elastic line's whitened residuals: the reference (the

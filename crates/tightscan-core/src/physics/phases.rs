@@ -326,6 +326,13 @@ pub fn find_phases<A: Sample, T: Sample>(
         end += 1;
     }
     let mut window = trim(angle, start, end, zone)?;
+    // The start level is crossed by a jump when friction changes abruptly there (the torque
+    // jumps by the clamp force times the change of the torque factor), and the window then
+    // starts at the first sample after the change, with nothing left of the curve before it.
+    // The window gets START_LEAD samples back before its (trimmed) start, so that the break
+    // detector's start test sees the jump (on HDT curves, about a sample per degree at a fifth
+    // of the rise; the default trim, 1 % of the span, takes about one).
+    window.start = window.start.saturating_sub(START_LEAD).max(knee);
 
     // Robust elastic line on the first half of the window: its gradient is the yardstick for
     // the yield test (yield can only be near the top).
@@ -406,6 +413,9 @@ fn trim<A: Sample>(angle: &[A], mut start: usize, mut end: usize, zone: &Elastic
     }
     Ok(ElasticWindow { start, end, peak: 0.0 })
 }
+
+/// Samples given back before the window's trimmed start (see [`find_phases`]).
+const START_LEAD: usize = 2;
 
 /// Robust line of torque on angle over a window, in window coordinates.
 fn fit<A: Sample, T: Sample>(angle: &[A], torque: &[T], w: ElasticWindow, s: &mut PhaseScratch) -> Option<Line> {

@@ -43,6 +43,12 @@ pub(super) struct Scratch {
     block_first: Vec<usize>,
     has_force: bool,
     regressor: Vec<f64>,
+    /// The whitened window read backwards, for the start test of [`Detector::break_row`].
+    reversed_x: Vec<f64>,
+    reversed_y: Vec<f64>,
+    /// The tested window starts where the elastic window does (at its torque level), not after
+    /// a controller step or a pause: only then does the start test run.
+    starts_at_level: bool,
     /// Samples of the window in `x`, `y`, `index` (stops left out); past it, up to the peak,
     /// those only the end test uses.
     n_window: usize,
@@ -729,6 +735,7 @@ impl Detector {
         let rundown_end = snug_index.saturating_sub(phases.window.start - snug_index);
         s.window_samples(angle, torque, window, tail_end, rundown_end);
         s.snug_x = phases.snug_angle - angle[window.start].to_f64();
+        s.starts_at_level = window.start == phases.window.start;
         let breaks = self.break_row(angle, s);
         let residual = self.residual_row(angle, row, s);
         let l1 = self.l1_row(angle, s);

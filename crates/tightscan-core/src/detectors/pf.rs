@@ -334,6 +334,80 @@ pub fn pf_fault_test(x: &[f64], y: &[f64], alpha: f64, config: &PfConfig) -> Opt
     })
 }
 
+/// Upper-tail probabilities of the null table's columns.
+pub const PF_NULL_LEVELS: [f64; 6] = [0.5, 0.2, 0.1, 0.05, 0.02, 0.01];
+/// Seed of the null table's simulation (plus the window length).
+pub const PF_NULL_SEED: u64 = 20_261_126;
+/// Null quantiles of [`PfResult::statistic`] at [`PF_NULL_LEVELS`], by window length (samples
+/// given to the filter), 256 particles: `cargo run --release -p tightscan-benches --example
+/// pf_null_table -- 3000` (3,000 lines per length).
+pub const PF_NULL_TABLE: &[(usize, [f64; 6])] = &[
+    (30, [0.053, 0.284, 0.550, 0.883, 1.435, 2.056]),
+    (60, [0.091, 0.355, 0.637, 1.015, 1.511, 1.987]),
+    (120, [0.100, 0.343, 0.631, 0.966, 1.403, 1.877]),
+    (250, [0.104, 0.328, 0.536, 0.886, 1.420, 1.724]),
+    (500, [0.112, 0.304, 0.503, 0.795, 1.186, 1.551]),
+    (1000, [0.129, 0.303, 0.464, 0.660, 0.973, 1.339]),
+    (2000, [0.151, 0.334, 0.475, 0.623, 0.864, 1.128]),
+    (4000, [0.199, 0.431, 0.593, 0.741, 0.965, 1.145]),
+];
+
+/// p-value of [`PfResult::statistic`] for a window of `n` samples from the null table
+/// ([`PF_NULL_TABLE`]): the table's quantiles interpolated in `ln n` between its rows (the first
+/// and last row serve shorter and longer windows; the tail thins as windows grow, so the last
+/// row is conservative beyond it), `ln p` interpolated linearly between its columns, and beyond
+/// the 1 % column the exponential tail `p = 0.01 exp(-(s - q_0.01))`: Ville's bound decays at
+/// that rate, and the simulated tail `P(S > s) e^s` falls with s, so the extrapolation errs on
+/// the safe side. Ville's `exp(-s)` is the valid but conservative alternative (10-100 times the
+/// simulated tail at the 1 % point).
+pub fn pf_null_p_value(statistic: f64, n: usize) -> f64 {
+    let (Some(first), Some(last)) = (PF_NULL_TABLE.first(), PF_NULL_TABLE.last()) else {
+        return (-statistic).exp().min(1.0);
+    };
+    let q: [f64; 6] = if n <= first.0 {
+        first.1
+    } else if n >= last.0 {
+        last.1
+    } else {
+        let k = PF_NULL_TABLE.partition_point(|row| row.0 <= n).clamp(1, PF_NULL_TABLE.len() - 1);
+        let (lo, hi) = (PF_NULL_TABLE[k - 1], PF_NULL_TABLE[k]);
+        let w = ((n as f64).ln() - (lo.0 as f64).ln()) / ((hi.0 as f64).ln() - (lo.0 as f64).ln());
+        std::array::from_fn(|j| lo.1[j] + w * (hi.1[j] - lo.1[j]))
+    };
+    let levels = PF_NULL_LEVELS;
+    if !(statistic > q[0]) {
+        // Below the median: p from 1 at s = 0 (or below) down to the median.
+        return if q[0] > 0.0 { (1.0 - 0.5 * statistic.max(0.0) / q[0]).clamp(0.5, 1.0) } else { 0.5 };
+    }
+    for j in 1..levels.len() {
+        if statistic <= q[j] {
+            let w = if q[j] > q[j - 1] { (statistic - q[j - 1]) / (q[j] - q[j - 1]) } else { 1.0 };
+            return (levels[j - 1].ln() + w * (levels[j].ln() - levels[j - 1].ln())).exp();
+        }
+    }
+    levels[levels.len() - 1] * (-(statistic - q[levels.len() - 1])).exp()
+}
+
+/// Statistics of the test on `repetitions` straight lines of `n` samples with independent
+/// Gaussian noise (the null model; by the invariance of the Bayes factor the line and the noise
+/// scale do not matter), evenly spaced angles, `particles` particles. Repetition `r` uses the
+/// line's noise seed and the filter's seed `seed + r`; run across rayon's threads, the result
+/// does not depend on them. What the null table ([`PF_NULL_TABLE`]) is made from.
+pub fn simulate_null_statistics(n: usize, repetitions: usize, particles: usize, seed: u64) -> Vec<f64> {
+    use rand_distr::{Distribution, StandardNormal};
+    use rayon::prelude::*;
+    (0..repetitions)
+        .into_par_iter()
+        .map(|r| {
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed.wrapping_add(r as u64) ^ 0x9e37_79b9_7f4a_7c15);
+            let x: Vec<f64> = (0..n).map(|i| i as f64).collect();
+            let y: Vec<f64> = (0..n).map(|i| i as f64 + Distribution::<f64>::sample(&StandardNormal, &mut rng)).collect();
+            let config = PfConfig { particles, seed: seed.wrapping_add(r as u64), ..PfConfig::default() };
+            pf_fault_test(&x, &y, 0.0, &config).map_or(0.0, |res| res.statistic)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

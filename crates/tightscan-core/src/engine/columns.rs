@@ -106,5 +106,12 @@ pub(super) fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         f(|r| r.residual.map(|k| k.shewhart_max_abs_z)),
         i(|r| r.residual.and_then(|k| k.shewhart_alarm_index).map(|v| v as i64)),
         f(|r| r.residual.and_then(|k| k.shewhart_alarm_angle)),
+        b(|r| r.pf.map(|p| p.alarm)),
+        f(|r| r.pf.map(|p| p.statistic)),
+        f(|r| r.pf.map(|p| p.p_value)),
+        f(|r| r.pf.map(|p| p.fault_probability)),
+        f(|r| r.pf.and_then(|p| p.onset).map(|o| o.angle)),
+        f(|r| r.pf.and_then(|p| p.onset).map(|o| o.lo_angle)),
+        f(|r| r.pf.and_then(|p| p.onset).map(|o| o.hi_angle)),
     ]
 }

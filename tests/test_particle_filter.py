@@ -31,7 +31,7 @@ ALPHA = 0.05
 PF = {"pf": True, "pf_alpha": ALPHA}
 CELLS = [(s, c, p) for s in ("CST", "HDT") for c, p in (("white", 0.0), ("ar1", 0.85))]
 N_CELL = 100  # clean curves per cell and generator: 400 per generator
-COVERAGE_FLOOR = 0.0
+COVERAGE_FLOOR = 0.6  # measured 0.72 (86 of 120 reached changes), below the nominal 0.90
 
 
 def _pf_alarms(curves: pa.Table, **extra: object) -> np.ndarray:
@@ -85,16 +85,17 @@ def test_onset_credible_interval_is_roughly_calibrated(abrupt_changes: tuple[pa.
     assert np.all(lo[ok] <= mid[ok]) and np.all(mid[ok] <= hi[ok])
     # The median onset lies near the true one (window spans are tens of degrees)...
     error = np.abs(mid[ok] - onset[ok])
-    assert float(np.median(error)) < 2.0, f"median onset error {np.median(error):.2f} deg"
-    # ... and the nominal 90 % interval covers it in a fair share of the curves. Measured:
-    # COVERAGE_MEASURED; the filter's particles share their jump times after resampling (path
-    # degeneracy), so the interval is narrower than a smoother's would be.
+    assert float(np.median(error)) < 0.5, f"median onset error {np.median(error):.2f} deg"
+    # ... and the nominal 90 % interval covers it in a fair share of the curves, not in 90 %:
+    # a change of 20-30 % is placed to a sample or two, and the particles share their jump
+    # times after resampling (path degeneracy), so the interval is often one sample wide and
+    # misses a change that fell between the neighbouring samples.
     coverage = float(np.mean((lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])))
     assert coverage >= COVERAGE_FLOOR, f"coverage {coverage:.3f}"
 
 
 def test_a_100k_sample_tightening_does_not_degenerate() -> None:
-    curves, _ = tightscan.simulate(1, seed=3, fault_fraction=0.0, sample_rate_hz=140_000.0)
+    curves, _ = tightscan.simulate(1, seed=3, fault_fraction=0.0, sample_rate_hz=200_000.0)
     n = len(curves["torque"][0])
     assert n >= 100_000
     results = tightscan.detect_batch(curves, config={**PF, "pf_particles": 64})

@@ -469,6 +469,7 @@ pub fn simulate_null_statistics(n: usize, repetitions: usize, particles: usize, 
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used)] // a failed expect is a failed test
 mod tests {
     use super::*;
     use rand_distr::{Distribution, StandardNormal};

@@ -57,7 +57,7 @@ def power(n: int, alpha: float) -> list[dict[str, Any]]:
             pf = np.array([bool(v) for v in r["pf_alarm"].to_pylist()])
             rule = np.array([bool(v) for v in r["change_detected"].to_pylist()])
             onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
-            a_lo, a_hi, mid = (np.array(r[c].to_pylist(), dtype=float) for c in ("pf_onset_lo", "pf_onset_hi", "pf_onset_angle"))
+            a_lo, a_hi, mid = (np.array(r[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi", "pf_change_angle"))
             ok = pf & reached & np.isfinite(a_lo)
             cover = float(np.mean((a_lo[ok] <= onset[ok]) & (onset[ok] <= a_hi[ok]))) if ok.any() else float("nan")
             err = float(np.median(np.abs(mid[ok] - onset[ok]))) if ok.any() else float("nan")

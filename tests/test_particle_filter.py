@@ -78,9 +78,9 @@ def test_power_on_abrupt_changes_of_20_to_30_percent(abrupt_changes: tuple[pa.Ta
 def test_onset_credible_interval_is_roughly_calibrated(abrupt_changes: tuple[pa.Table, pa.Table]) -> None:
     results, truth = abrupt_changes
     onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
-    lo = np.array(results["pf_onset_lo"].to_pylist(), dtype=float)
-    hi = np.array(results["pf_onset_hi"].to_pylist(), dtype=float)
-    mid = np.array(results["pf_onset_angle"].to_pylist(), dtype=float)
+    lo = np.array(results["pf_change_lo"].to_pylist(), dtype=float)
+    hi = np.array(results["pf_change_hi"].to_pylist(), dtype=float)
+    mid = np.array(results["pf_change_angle"].to_pylist(), dtype=float)
     alarms = np.array([bool(v) for v in results["pf_alarm"].to_pylist()])
     ok = alarms & np.isfinite(onset) & np.isfinite(lo)
     assert ok.sum() >= 80
@@ -111,7 +111,7 @@ _RUN = """
 import sys, json, tightscan
 curves, _ = tightscan.simulate(40, seed=11, fault_fraction=0.5)
 r = tightscan.detect_batch(curves, config={"pf": True, "pf_seed": 7})
-print(json.dumps([r[c].to_pylist() for c in ("pf_statistic", "pf_fault_probability", "pf_onset_angle")]))
+print(json.dumps([r[c].to_pylist() for c in ("pf_statistic", "pf_fault_probability", "pf_change_angle")]))
 """
 
 

@@ -256,9 +256,9 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("pf_statistic", ResultType::Float64, "", "largest log Bayes factor over the window, ln BF (fault model against no fault)"),
     ("pf_p_value", ResultType::Float64, "", "p-value of pf_statistic from the shipped null table (white Gaussian noise, by window length); exp(-pf_statistic) is Ville's bound, valid but conservative"),
     ("pf_fault_probability", ResultType::Float64, "", "posterior probability of the fault mode (the torque rate has jumped) after the window's last sample"),
-    ("pf_onset_angle", ResultType::Float64, "deg", "posterior median of where the torque rate jumped (null when no particle jumped)"),
-    ("pf_onset_lo", ResultType::Float64, "deg", "5 % posterior quantile of the jump's angle (90 % credible interval; from the sample before it, since a jump at a sample happened after the one before)"),
-    ("pf_onset_hi", ResultType::Float64, "deg", "95 % posterior quantile of the jump's angle (90 % credible interval)"),
+    ("pf_change_angle", ResultType::Float64, "deg", "posterior median of where the torque rate jumped (null when no particle jumped)"),
+    ("pf_change_lo", ResultType::Float64, "deg", "5 % posterior quantile of the jump's angle (90 % credible interval; from the sample before it, since a jump at a sample happened after the one before)"),
+    ("pf_change_hi", ResultType::Float64, "deg", "95 % posterior quantile of the jump's angle (90 % credible interval)"),
 ];
 
 /// Arrow type of a result column.

@@ -166,11 +166,15 @@ class ParticleFilterConfig:
     """The particle-filter fault test (opt-in): the torque rate tracked sample by sample over
     the whitened elastic window, with a fault mode in which it has jumped.
 
-    Its statistic is the largest log Bayes factor of the fault model against no fault; the
-    p-value ``min(1, 1/BF)`` holds its size by Ville's inequality for any window length and
-    particle count (conservative). ``particles`` trades cost (about ``particles`` small Kalman
-    steps per sample) against the Monte Carlo error of the Bayes factor; ``seed + row`` seeds
-    each tightening, so results do not depend on the threads."""
+    Its statistic (``pf_statistic``) is the largest log Bayes factor of the fault model against
+    no fault; being invariant to the line and the noise scale, its null distribution depends on
+    the window length only, and ``pf_p_value`` comes from a shipped null table by length
+    (``exp(-pf_statistic)`` is Ville's bound: valid for any length and particle count, but
+    conservative). ``particles`` trades cost (about 25-35 ns per particle and window sample)
+    against the Monte Carlo error of the Bayes factor; ``seed + row`` seeds each tightening,
+    so results do not depend on the threads. Not in the default rule: on simulated curves its
+    recall is below the rule's (benches/README.md); it adds the online view (the posterior of
+    the fault mode and of where it began)."""
 
     enabled: bool = _DEFAULTS["pf"]
     particles: int = _DEFAULTS["pf_particles"]

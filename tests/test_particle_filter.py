@@ -130,7 +130,7 @@ def test_switching_it_on_leaves_the_other_columns_unchanged() -> None:
     default = tightscan.detect_batch(curves)
     with_pf = tightscan.detect_batch(curves, config={"pf": True})
     pf_columns = [c for c in default.column_names if c.startswith("pf_")]
-    assert len(pf_columns) == 7
+    assert len(pf_columns) == 8
     for c in default.column_names:
         if c in pf_columns:
             assert default[c].null_count == default.num_rows
@@ -149,3 +149,13 @@ def test_bad_settings_are_refused() -> None:
         tightscan.detect_batch(curves, config={"pf": True, "pf_particles": 0})
     in_rule = tightscan.detect_batch(curves, config={"pf": True, "detectors": ["break", "pf"]})
     assert in_rule["pf_alarm"].null_count == 0
+
+
+def test_the_friction_track_follows_the_torque_rate() -> None:
+    curves, truth = tightscan.simulate(20, seed=13, fault_fraction=0.0)
+    results = tightscan.detect_batch(curves, config={"pf": True, "pf_friction": True})
+    assert tightscan.detect_batch(curves, config={"pf": True})["pf_friction"].null_count == 20
+    for track, rate in zip(results["pf_friction"].to_pylist(), results["torque_rate"].to_pylist()):
+        assert track is not None and len(track) > 50
+        # The whitened window's rate: weighted by the noise model, close to the robust rate.
+        assert abs(float(np.median(track[-20:])) - rate) < 0.05 * abs(rate), (track[-5:], rate)

@@ -172,7 +172,8 @@ class ParticleFilterConfig:
     (``exp(-pf_statistic)`` is Ville's bound: valid for any length and particle count, but
     conservative). ``particles`` trades cost (about 25-35 ns per particle and window sample)
     against the Monte Carlo error of the Bayes factor; ``seed + row`` seeds each tightening,
-    so results do not depend on the threads. Not in the default rule: on simulated curves its
+    so results do not depend on the threads. ``friction_track`` adds ``pf_friction``, the
+    posterior mean torque rate after every tested sample (for plots). Not in the default rule: on simulated curves its
     recall is below the rule's (benches/README.md); it adds the online view (the posterior of
     the fault mode and of where it began)."""
 
@@ -180,6 +181,7 @@ class ParticleFilterConfig:
     particles: int = _DEFAULTS["pf_particles"]
     alpha: float | None = _DEFAULTS["pf_alpha"]
     seed: int = _DEFAULTS["pf_seed"]
+    friction_track: bool = _DEFAULTS["pf_friction"]
 
 
 @dataclass(frozen=True)
@@ -234,6 +236,7 @@ class DetectConfig:
             "pf_particles": self.pf.particles,
             "pf_alpha": self.pf.alpha,
             "pf_seed": self.pf.seed,
+            "pf_friction": self.pf.friction_track,
         }
 
 

@@ -69,6 +69,7 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "pf_particles" => c.pf.particles = get(py, &key, &v)?,
             "pf_alpha" => c.pf.alpha = get(py, &key, &v)?,
             "pf_seed" => c.pf.seed = get(py, &key, &v)?,
+            "pf_friction" => c.pf.friction_track = get(py, &key, &v)?,
             "max_blocks" => c.blocks.max_blocks = get(py, &key, &v)?,
             "min_block_samples" => c.blocks.min_block_samples = get(py, &key, &v)?,
             "training_fraction" => c.blocks.training_fraction = get(py, &key, &v)?,
@@ -127,6 +128,7 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("pf_particles", c.pf.particles)?;
     d.set_item("pf_alpha", c.pf.alpha)?;
     d.set_item("pf_seed", c.pf.seed)?;
+    d.set_item("pf_friction", c.pf.friction_track)?;
     d.set_item("max_blocks", c.blocks.max_blocks)?;
     d.set_item("min_block_samples", c.blocks.min_block_samples)?;
     d.set_item("training_fraction", c.blocks.training_fraction)?;

@@ -127,11 +127,14 @@ pub struct PfDetectConfig {
     /// Seed of the filter; tightening `i` of a batch uses `seed + i`, so results do not depend
     /// on the threads.
     pub seed: u64,
+    /// Report the posterior mean torque rate after every tested sample (`pf_friction`, a list
+    /// per tightening: for plots).
+    pub friction_track: bool,
 }
 
 impl Default for PfDetectConfig {
     fn default() -> Self {
-        Self { enabled: false, particles: 256, alpha: None, seed: 0 }
+        Self { enabled: false, particles: 256, alpha: None, seed: 0, friction_track: false }
     }
 }
 

@@ -152,7 +152,7 @@ impl Detector {
                 DetectorKind::Break => r.breaks.map(|b| (b.alarm, Some((b.change_index, b.change_angle)))),
                 DetectorKind::L1 => r.l1.map(|l| (l.alarm_index.is_some(), l.alarm_index.zip(l.alarm_angle))),
                 DetectorKind::Kde => r.residual.and_then(|k| k.kde).map(|k| (k.alarm, k.change_index.zip(k.change_angle))),
-                DetectorKind::Pf => r.pf.map(|p| (p.alarm, p.onset.map(|o| (o.index, o.angle)))),
+                DetectorKind::Pf => r.pf.as_ref().map(|p| (p.alarm, p.onset.map(|o| (o.index, o.angle)))),
                 DetectorKind::Cusum => r.cusum.as_ref().map(|c| {
                     (c.alarm.is_some(), c.alarm.as_ref().map(|a| (a.change_index, a.change_angle)))
                 }),

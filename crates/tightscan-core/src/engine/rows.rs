@@ -34,7 +34,7 @@ pub(super) struct RowResult {
 }
 
 /// The particle-filter fault test ([`crate::detectors::pf`]).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub(super) struct PfRow {
     pub(super) alarm: bool,
     pub(super) statistic: f64,
@@ -43,6 +43,8 @@ pub(super) struct PfRow {
     /// Posterior median of the change and the ends of its 90 % credible interval (given a
     /// change); `None` when no particle is in the fault mode.
     pub(super) onset: Option<PfOnset>,
+    /// Posterior mean torque rate after each tested sample (empty unless asked).
+    pub(super) friction: Vec<f64>,
 }
 
 #[derive(Clone, Copy, Debug)]

@@ -259,6 +259,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("pf_change_angle", ResultType::Float64, "deg", "posterior median of where the torque rate jumped (null when no particle jumped)"),
     ("pf_change_lo", ResultType::Float64, "deg", "5 % posterior quantile of the jump's angle (90 % credible interval; from the sample before it, since a jump at a sample happened after the one before)"),
     ("pf_change_hi", ResultType::Float64, "deg", "95 % posterior quantile of the jump's angle (90 % credible interval)"),
+    ("pf_friction", ResultType::ListFloat64, "Nm/deg", "posterior mean torque rate (the friction proxy) after each tested sample from the filter's 11th on, on the whitened window (null unless pf_friction is asked)"),
 ];
 
 /// Arrow type of a result column.
@@ -272,6 +273,8 @@ pub enum ResultType {
     Float64,
     /// Boolean.
     Boolean,
+    /// List of Float64 (one list per tightening).
+    ListFloat64,
 }
 
 impl ResultType {
@@ -282,6 +285,7 @@ impl ResultType {
             Self::Int64 => DataType::Int64,
             Self::Float64 => DataType::Float64,
             Self::Boolean => DataType::Boolean,
+            Self::ListFloat64 => DataType::List(Arc::new(Field::new_list_field(DataType::Float64, true))),
         }
     }
 }

@@ -21,7 +21,7 @@ impl Detector {
             return None;
         }
         let cfg = &self.config.pf;
-        let filter = PfConfig { particles: cfg.particles, seed: cfg.seed.wrapping_add(row as u64), ..PfConfig::default() };
+        let filter = PfConfig { particles: cfg.particles, seed: cfg.seed.wrapping_add(row as u64), keep_track: cfg.friction_track, ..PfConfig::default() };
         // The whitened constant: the weights of noise growing with the torque (all 1 without),
         // whitened like the angle and the torque were.
         s.weighted.clear();
@@ -48,7 +48,8 @@ impl Detector {
         let placed = if alarm {
             let pivot = vec![s.snug_x; n - lag];
             let friction_line = WhitenedLine { pivot_x: &pivot, ..line };
-            pf_fault_test_whitened(&friction_line, self.pf_alpha, &filter).and_then(|r| r.onset).or(res.onset)
+            let placing = PfConfig { keep_track: false, ..filter.clone() };
+            pf_fault_test_whitened(&friction_line, self.pf_alpha, &placing).and_then(|r| r.onset).or(res.onset)
         } else {
             res.onset
         };
@@ -66,6 +67,7 @@ impl Detector {
             p_value,
             fault_probability: res.fault_probability,
             onset,
+            friction: res.rate_track,
         })
     }
 }

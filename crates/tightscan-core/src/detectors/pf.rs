@@ -577,6 +577,19 @@ mod tests {
         }
     }
 
+    /// The shipped table matches a fresh simulation (other seeds) at its 10 % and 5 % points:
+    /// the null lines' p-values from the table fall at or below 0.1 and 0.05 about that often.
+    #[test]
+    fn the_null_table_matches_a_fresh_simulation() {
+        let (n, reps) = (250, 600);
+        let stats = simulate_null_statistics(n, reps, 256, 777);
+        for level in [0.1, 0.05] {
+            let rate = stats.iter().filter(|&&s| pf_null_p_value(s, n) <= level).count() as f64 / reps as f64;
+            // Binomial sd at 0.1 over 600 lines: 1.2 points.
+            assert!((rate - level).abs() < 4.0 * (level * (1.0 - level) / reps as f64).sqrt(), "level {level}: {rate}");
+        }
+    }
+
     /// The same seed gives the same result; bad input gives `None`, never a panic.
     #[test]
     fn reproducible_and_safe() {

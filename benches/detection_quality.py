@@ -556,7 +556,7 @@ def markdown(cells: list[dict[str, Any]], meta: dict[str, Any]) -> str:
                          + " | ".join(pct(v["rate"]) for v in blk["recall_by_band"].values()) + " | "
                          + " | ".join(pct(blk["recall_by_onset_third"][t]["rate"]) for t, _, _ in ONSET_THIRDS) + " |")
     lines += ["", "Same curves (the peers' subsample), matched 1 % unless said: FA % / recall 15-45 % / recall 3-15 % / median abrupt onset error [deg]:", ""]
-    names = ["decision rule"] + [n for n in ("break", "cusum", "kde", "l1", "shewhart") if any(find(c["same_curves"], n, "matched 1 %") for c in cells)] + PEER_NAMES
+    names = ["decision rule"] + [n for n in ("break", "cusum", "kde", "pf", "l1", "shewhart") if any(find(c["same_curves"], n, "matched 1 %") for c in cells)] + PEER_NAMES
     lines += ["| generator | cell | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
     for c in cells:
         row = []

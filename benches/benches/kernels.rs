@@ -116,6 +116,25 @@ fn bench_cusum(c: &mut Criterion) {
     group.finish();
 }
 
+/// The particle filter's cost per sample and particle (`Throughput::Elements(n * particles)`):
+/// one 1,000-sample white-noise line, 64 to 1,024 particles.
+fn bench_pf(c: &mut Criterion) {
+    use tightscan_core::detectors::pf::{pf_fault_test, PfConfig};
+    let n = 1000;
+    let noise = normal_increments(n, CUSUM_SEED);
+    let x: Vec<f64> = (0..n).map(|i| i as f64).collect();
+    let y: Vec<f64> = x.iter().zip(&noise).map(|(xi, e)| xi + e).collect();
+    let mut group = c.benchmark_group("pf");
+    for particles in [64usize, 256, 1024] {
+        group.throughput(Throughput::Elements((n * particles) as u64));
+        let config = PfConfig { particles, ..PfConfig::default() };
+        group.bench_with_input(BenchmarkId::new("sample_particle", particles), &config, |b, config| {
+            b.iter(|| pf_fault_test(black_box(&x), black_box(&y), 0.01, config).map(|r| r.statistic));
+        });
+    }
+    group.finish();
+}
+
 fn bench_detect(c: &mut Criterion) {
     let detector = Detector::new(DetectConfig::default()).expect("bench setup: detector");
     let mut group = c.benchmark_group("detect");
@@ -286,5 +305,5 @@ fn bench_stages(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_cusum, bench_detect, bench_simulate, bench_stages);
+criterion_group!(benches, bench_cusum, bench_pf, bench_detect, bench_simulate, bench_stages);
 criterion_main!(benches);

@@ -28,6 +28,7 @@ from .config import (
     L1Config,
     DecisionConfig,
     ResidualTestConfig,
+    ParticleFilterConfig,
     config_from_toml,
     config_to_toml,
 )
@@ -84,6 +85,7 @@ __all__ = [
     "FrictionConfig",
     "BreakConfig",
     "ResidualTestConfig",
+    "ParticleFilterConfig",
     "L1Config",
     "DecisionConfig",
     "config_from_toml",

@@ -86,6 +86,7 @@ def _config(args: argparse.Namespace) -> DetectConfig:
         cusum=dataclasses.replace(config.cusum, **cusum),
         decision=dataclasses.replace(config.decision, **decision),
         residual_tests=dataclasses.replace(config.residual_tests, kde=True) if args.kde else config.residual_tests,
+        pf=dataclasses.replace(config.pf, enabled=True) if args.pf else config.pf,
     )
 
 
@@ -153,9 +154,10 @@ def _add_detect_options(p: argparse.ArgumentParser) -> None:
         nargs="+",
         default=None,
         metavar="NAME",
-        help=f"detectors of the rule: break, l1, cusum, kde (default {' '.join(decision.detectors)})",
+        help=f"detectors of the rule: break, l1, cusum, kde, pf (default {' '.join(decision.detectors)})",
     )
     p.add_argument("--kde", action="store_true", help="run the kernel-density test (about 1 ms per tightening)")
+    p.add_argument("--pf", action="store_true", help="run the particle-filter fault test (opt-in; pf_* columns)")
     p.add_argument("--kappa", type=float, default=None, help=f"CUSUM drift in sigma units (default {d.kappa})")
     p.add_argument(
         "--arl0",

@@ -26,6 +26,7 @@ __all__ = [
     "L1Config",
     "DecisionConfig",
     "ResidualTestConfig",
+    "ParticleFilterConfig",
     "DetectConfig",
     "ConfigLike",
     "config_from_toml",
@@ -132,7 +133,8 @@ class DecisionConfig:
     simulator: one measured on our own curves did not transfer to curves we did not
     generate); ``"K-of-n"`` (e.g. ``"2-of-n"``) asks K detectors to agree, a subset of those
     alarms. Detectors: ``break`` (sup-LR scan), ``l1``,
-    ``cusum``, ``kde`` (needs ``ResidualTestConfig(kde=True)``).
+    ``cusum``, ``kde`` (needs ``ResidualTestConfig(kde=True)``), ``pf`` (needs
+    ``ParticleFilterConfig(enabled=True)``).
 
     ``rule`` may also be a table of detector responses, one mapping per row, e.g.
     ``({"break": True}, {"cusum": True, "l1": True})``: a change when any row matches, a row
@@ -163,6 +165,29 @@ class ResidualTestConfig:
 
 
 @dataclass(frozen=True)
+class ParticleFilterConfig:
+    """The particle-filter fault test (opt-in): the torque rate tracked sample by sample over
+    the whitened elastic window, with a fault mode in which it has jumped.
+
+    Its statistic (``pf_statistic``) is the largest log Bayes factor of the fault model against
+    no fault; being invariant to the line and the noise scale, its null distribution depends on
+    the window length only, and ``pf_p_value`` comes from a shipped null table by length
+    (``exp(-pf_statistic)`` is Ville's bound: valid for any length and particle count, but
+    conservative). ``particles`` trades cost (about 25-35 ns per particle and window sample)
+    against the Monte Carlo error of the Bayes factor; ``seed + row`` seeds each tightening,
+    so results do not depend on the threads. ``friction_track`` adds ``pf_friction``, the
+    posterior mean torque rate after every tested sample (for plots). Not in the default rule: on simulated curves its
+    recall is below the rule's (benches/README.md); it adds the online view (the posterior of
+    the fault mode and of where it began)."""
+
+    enabled: bool = _DEFAULTS["pf"]
+    particles: int = _DEFAULTS["pf_particles"]
+    alpha: float | None = _DEFAULTS["pf_alpha"]
+    seed: int = _DEFAULTS["pf_seed"]
+    friction_track: bool = _DEFAULTS["pf_friction"]
+
+
+@dataclass(frozen=True)
 class DetectConfig:
     """All detection parameters."""
 
@@ -174,6 +199,7 @@ class DetectConfig:
     l1: L1Config = field(default_factory=L1Config)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
     residual_tests: ResidualTestConfig = field(default_factory=ResidualTestConfig)
+    pf: ParticleFilterConfig = field(default_factory=ParticleFilterConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """The flat parameter dict the core reads."""
@@ -210,6 +236,11 @@ class DetectConfig:
             "kde_permutations": self.residual_tests.kde_permutations,
             "kde_seed": self.residual_tests.kde_seed,
             "shewhart_k": self.residual_tests.shewhart_k,
+            "pf": self.pf.enabled,
+            "pf_particles": self.pf.particles,
+            "pf_alpha": self.pf.alpha,
+            "pf_seed": self.pf.seed,
+            "pf_friction": self.pf.friction_track,
         }
 
 
@@ -225,6 +256,7 @@ _UNSET_NOTES = {
     "breaks.alpha": "the break scan's share of decision.alpha",
     "l1.alpha": "the L1 monitor's share of decision.alpha",
     "residual_tests.kde_alpha": "the KDE test's share of decision.alpha",
+    "pf.alpha": "the particle filter's share of decision.alpha",
 }
 
 

@@ -28,7 +28,7 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
     for (k, v) in dict.iter() {
         let key: String = k.extract()?;
         // None keeps a default, except where None itself is a setting (derive from alpha).
-        if v.is_none() && !matches!(key.as_str(), "threshold" | "arl0" | "break_alpha" | "kde_alpha" | "l1_alpha") {
+        if v.is_none() && !matches!(key.as_str(), "threshold" | "arl0" | "break_alpha" | "kde_alpha" | "l1_alpha" | "pf_alpha") {
             continue;
         }
         match key.as_str() {
@@ -56,7 +56,7 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
                     .iter()
                     .map(|n| {
                         DetectorKind::parse(n)
-                            .ok_or_else(|| bad(py, "detectors", format!("unknown detector '{n}' (break, l1, cusum, kde)")))
+                            .ok_or_else(|| bad(py, "detectors", format!("unknown detector '{n}' (break, l1, cusum, kde, pf)")))
                     })
                     .collect::<PyResult<_>>()?;
             }
@@ -66,6 +66,11 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "kde_permutations" => c.residual_tests.kde_permutations = get(py, &key, &v)?,
             "kde_seed" => c.residual_tests.kde_seed = get(py, &key, &v)?,
             "shewhart_k" => c.residual_tests.shewhart_k = get(py, &key, &v)?,
+            "pf" => c.pf.enabled = get(py, &key, &v)?,
+            "pf_particles" => c.pf.particles = get(py, &key, &v)?,
+            "pf_alpha" => c.pf.alpha = get(py, &key, &v)?,
+            "pf_seed" => c.pf.seed = get(py, &key, &v)?,
+            "pf_friction" => c.pf.friction_track = get(py, &key, &v)?,
             "max_blocks" => c.blocks.max_blocks = get(py, &key, &v)?,
             "min_block_samples" => c.blocks.min_block_samples = get(py, &key, &v)?,
             "training_fraction" => c.blocks.training_fraction = get(py, &key, &v)?,
@@ -121,6 +126,11 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("kde_permutations", c.residual_tests.kde_permutations)?;
     d.set_item("kde_seed", c.residual_tests.kde_seed)?;
     d.set_item("shewhart_k", c.residual_tests.shewhart_k)?;
+    d.set_item("pf", c.pf.enabled)?;
+    d.set_item("pf_particles", c.pf.particles)?;
+    d.set_item("pf_alpha", c.pf.alpha)?;
+    d.set_item("pf_seed", c.pf.seed)?;
+    d.set_item("pf_friction", c.pf.friction_track)?;
     d.set_item("max_blocks", c.blocks.max_blocks)?;
     d.set_item("min_block_samples", c.blocks.min_block_samples)?;
     d.set_item("training_fraction", c.blocks.training_fraction)?;
@@ -153,7 +163,7 @@ fn parse_rule(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<DecisionRule
                 .map(|(name, fires)| {
                     let name: String = get(py, "rule", &name)?;
                     let kind = DetectorKind::parse(&name)
-                        .ok_or_else(|| bad(py, "rule", format!("unknown detector '{name}' in the response table (break, l1, cusum, kde)")))?;
+                        .ok_or_else(|| bad(py, "rule", format!("unknown detector '{name}' in the response table (break, l1, cusum, kde, pf)")))?;
                     Ok((kind, get::<bool>(py, "rule", &fires)?))
                 })
                 .collect::<PyResult<Vec<_>>>()

@@ -9,6 +9,7 @@ pub mod cusum;
 pub mod kde;
 pub mod monitor;
 pub mod noise;
+pub mod pf;
 pub mod sequence;
 pub mod shewhart;
 

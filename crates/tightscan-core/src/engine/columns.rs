@@ -3,6 +3,7 @@
 
 use std::sync::Arc;
 
+use arrow_array::builder::{Float64Builder, ListBuilder};
 use arrow_array::{ArrayRef, BooleanArray, Float64Array, Int64Array, StringArray};
 use arrow_schema::{Field, Schema};
 
@@ -46,6 +47,17 @@ pub(super) fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
             .collect::<StringArray>(),
     );
     let fired: ArrayRef = Arc::new(rows.iter().map(|r| r.decision.as_ref().map(|d| d.fired.as_str())).collect::<StringArray>());
+    let mut track = ListBuilder::new(Float64Builder::new());
+    for r in rows {
+        match r.pf.as_ref().filter(|p| !p.friction.is_empty()) {
+            Some(p) => {
+                track.values().append_slice(&p.friction);
+                track.append(true);
+            }
+            None => track.append(false),
+        }
+    }
+    let pf_friction: ArrayRef = Arc::new(track.finish());
     vec![
         status,
         i(|r| Some(r.n_samples as i64)),
@@ -107,5 +119,13 @@ pub(super) fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         f(|r| r.residual.map(|k| k.shewhart_max_abs_z)),
         i(|r| r.residual.and_then(|k| k.shewhart_alarm_index).map(|v| v as i64)),
         f(|r| r.residual.and_then(|k| k.shewhart_alarm_angle)),
+        b(|r| r.pf.as_ref().map(|p| p.alarm)),
+        f(|r| r.pf.as_ref().map(|p| p.statistic)),
+        f(|r| r.pf.as_ref().map(|p| p.p_value)),
+        f(|r| r.pf.as_ref().map(|p| p.fault_probability)),
+        f(|r| r.pf.as_ref().and_then(|p| p.onset).map(|o| o.angle)),
+        f(|r| r.pf.as_ref().and_then(|p| p.onset).map(|o| o.lo_angle)),
+        f(|r| r.pf.as_ref().and_then(|p| p.onset).map(|o| o.hi_angle)),
+        pf_friction,
     ]
 }

@@ -126,6 +126,30 @@ impl Default for ResidualTestConfig {
     }
 }
 
+/// The particle-filter fault test ([`crate::detectors::pf`]): opt-in, it costs about
+/// `particles` Kalman steps per sample.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PfDetectConfig {
+    /// Run it.
+    pub enabled: bool,
+    /// Particles of the filter.
+    pub particles: usize,
+    /// False-alarm probability per tightening; `None`: its share of the decision rule's alpha.
+    pub alpha: Option<f64>,
+    /// Seed of the filter; tightening `i` of a batch uses `seed + i`, so results do not depend
+    /// on the threads.
+    pub seed: u64,
+    /// Report the posterior mean torque rate after every tested sample (`pf_friction`, a list
+    /// per tightening: for plots).
+    pub friction_track: bool,
+}
+
+impl Default for PfDetectConfig {
+    fn default() -> Self {
+        Self { enabled: false, particles: 256, alpha: None, seed: 0, friction_track: false }
+    }
+}
+
 /// Everything `detect` needs.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DetectConfig {
@@ -147,4 +171,6 @@ pub struct DetectConfig {
     pub decision: DecisionConfig,
     /// Residual tests (kernel density, k-sigma).
     pub residual_tests: ResidualTestConfig,
+    /// Particle-filter fault test.
+    pub pf: PfDetectConfig,
 }

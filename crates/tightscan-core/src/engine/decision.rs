@@ -18,6 +18,8 @@ pub enum DetectorKind {
     Cusum,
     /// Kernel-density test of the line residuals (needs `residual_tests.kde`).
     Kde,
+    /// Particle-filter fault test (needs `pf.enabled`).
+    Pf,
 }
 
 impl DetectorKind {
@@ -28,11 +30,12 @@ impl DetectorKind {
             Self::L1 => "l1",
             Self::Cusum => "cusum",
             Self::Kde => "kde",
+            Self::Pf => "pf",
         }
     }
     /// Parses a name of [`DetectorKind::as_str`].
     pub fn parse(name: &str) -> Option<Self> {
-        [Self::Break, Self::L1, Self::Cusum, Self::Kde].into_iter().find(|k| k.as_str() == name)
+        [Self::Break, Self::L1, Self::Cusum, Self::Kde, Self::Pf].into_iter().find(|k| k.as_str() == name)
     }
     /// Share weight in the rule's alpha split. The break scan gets the largest share: it sees a
     /// change anywhere in the window and is the most powerful of the four on simulated faults
@@ -40,7 +43,7 @@ impl DetectorKind {
     pub(super) fn weight(self) -> f64 {
         match self {
             Self::Break => 3.0,
-            Self::L1 | Self::Cusum | Self::Kde => 1.0,
+            Self::L1 | Self::Cusum | Self::Kde | Self::Pf => 1.0,
         }
     }
 }
@@ -149,12 +152,13 @@ impl Detector {
                 DetectorKind::Break => r.breaks.map(|b| (b.alarm, Some((b.change_index, b.change_angle)))),
                 DetectorKind::L1 => r.l1.map(|l| (l.alarm_index.is_some(), l.alarm_index.zip(l.alarm_angle))),
                 DetectorKind::Kde => r.residual.and_then(|k| k.kde).map(|k| (k.alarm, k.change_index.zip(k.change_angle))),
+                DetectorKind::Pf => r.pf.as_ref().map(|p| (p.alarm, p.onset.map(|o| (o.index, o.angle)))),
                 DetectorKind::Cusum => r.cusum.as_ref().map(|c| {
                     (c.alarm.is_some(), c.alarm.as_ref().map(|a| (a.change_index, a.change_angle)))
                 }),
             }
         };
-        let order = [DetectorKind::Break, DetectorKind::L1, DetectorKind::Kde, DetectorKind::Cusum];
+        let order = [DetectorKind::Break, DetectorKind::L1, DetectorKind::Kde, DetectorKind::Pf, DetectorKind::Cusum];
         let fired: Vec<&str> = order.iter().filter(|&&k| state(k).is_some_and(|s| s.0)).map(|k| k.as_str()).collect();
         let in_rule: Vec<DetectorKind> = order.iter().copied().filter(|k| d.detectors.contains(k)).collect();
         if in_rule.iter().all(|&k| state(k).is_none()) {

@@ -38,7 +38,7 @@ use rows::RowResult;
 use schema::{Layout, TIGHTENING_ID};
 use status::TighteningStatus;
 
-pub use config::{BreakConfig, CusumConfig, DetectConfig, FrictionConfig, L1Config, ResidualTestConfig};
+pub use config::{BreakConfig, CusumConfig, DetectConfig, FrictionConfig, L1Config, PfDetectConfig, ResidualTestConfig};
 pub use decision::{DecisionConfig, DecisionRule, DetectorKind};
 pub use traces::{BreakTrace, CusumTrace, DetectorTraces, KdeTrace, L1Trace};
 
@@ -51,6 +51,7 @@ pub struct Detector {
     l1_alpha: f64,
     l1_critical_value: f64,
     kde_alpha: f64,
+    pf_alpha: f64,
 }
 
 impl Detector {
@@ -146,6 +147,16 @@ impl Detector {
                 ),
             ));
         }
+        if d.detectors.contains(&DetectorKind::Pf) && !config.pf.enabled {
+            return Err(TightscanError::parameter("detectors", "'pf' in the rule needs pf=True"));
+        }
+        let pf_alpha = config.pf.alpha.unwrap_or_else(|| d.share(DetectorKind::Pf));
+        if !(pf_alpha > 0.0 && pf_alpha < 1.0) {
+            return Err(TightscanError::parameter("pf_alpha", format!("must be in (0, 1), got {pf_alpha}")));
+        }
+        if !(1..=1_000_000).contains(&config.pf.particles) {
+            return Err(TightscanError::parameter("pf_particles", format!("must be in 1..=1000000, got {}", config.pf.particles)));
+        }
         if !(r.shewhart_k.is_finite() && r.shewhart_k > 0.0) {
             return Err(TightscanError::parameter("shewhart_k", format!("must be > 0, got {}", r.shewhart_k)));
         }
@@ -191,7 +202,7 @@ impl Detector {
                 cusum_threshold(monitored / d.share(DetectorKind::Cusum), c.kappa, true)?
             }
         };
-        Ok(Self { config, threshold, break_alpha, l1_alpha, l1_critical_value, kde_alpha })
+        Ok(Self { config, threshold, break_alpha, l1_alpha, l1_critical_value, kde_alpha, pf_alpha })
     }
 
     /// The configuration in use.

@@ -29,7 +29,30 @@ pub(super) struct RowResult {
     pub(super) residual: Option<ResidualRow>,
     pub(super) l1: Option<L1Row>,
     pub(super) cusum: Option<CusumRow>,
+    pub(super) pf: Option<PfRow>,
     pub(super) decision: Option<DecisionRow>,
+}
+
+/// The particle-filter fault test ([`crate::detectors::pf`]).
+#[derive(Clone, Debug)]
+pub(super) struct PfRow {
+    pub(super) alarm: bool,
+    pub(super) statistic: f64,
+    pub(super) p_value: f64,
+    pub(super) fault_probability: f64,
+    /// Posterior median of the change and the ends of its 90 % credible interval (given a
+    /// change); `None` when no particle is in the fault mode.
+    pub(super) onset: Option<PfOnset>,
+    /// Posterior mean torque rate after each tested sample (empty unless asked).
+    pub(super) friction: Vec<f64>,
+}
+
+#[derive(Clone, Copy, Debug)]
+pub(super) struct PfOnset {
+    pub(super) index: usize,
+    pub(super) angle: f64,
+    pub(super) lo_angle: f64,
+    pub(super) hi_angle: f64,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -133,6 +156,7 @@ impl RowResult {
             residual: None,
             l1: None,
             cusum: None,
+            pf: None,
             decision: None,
         }
     }

@@ -253,6 +253,14 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("shewhart_max_abs_z", ResultType::Float64, "sigma", "largest standardised line residual after the reference"),
     ("shewhart_alarm_index", ResultType::Int64, "", "sample index of the first residual beyond the limit"),
     ("shewhart_alarm_angle", ResultType::Float64, "deg", "angle of the first residual beyond the limit"),
+    ("pf_alarm", ResultType::Boolean, "", "particle-filter fault test fired: pf_p_value at or below pf_alpha (null unless enabled)"),
+    ("pf_statistic", ResultType::Float64, "", "largest log Bayes factor over the window, ln BF (fault model against no fault)"),
+    ("pf_p_value", ResultType::Float64, "", "p-value of pf_statistic from the shipped null table (white Gaussian noise, by window length); exp(-pf_statistic) is Ville's bound, valid but conservative"),
+    ("pf_fault_probability", ResultType::Float64, "", "posterior probability of the fault mode (the torque rate has jumped) after the window's last sample"),
+    ("pf_change_angle", ResultType::Float64, "deg", "posterior median of where the torque rate jumped (null when no particle jumped)"),
+    ("pf_change_lo", ResultType::Float64, "deg", "5 % posterior quantile of the jump's angle (90 % credible interval; from the sample before it, since a jump at a sample happened after the one before)"),
+    ("pf_change_hi", ResultType::Float64, "deg", "95 % posterior quantile of the jump's angle (90 % credible interval)"),
+    ("pf_friction", ResultType::ListFloat64, "Nm/deg", "posterior mean torque rate (the friction proxy) after each tested sample from the filter's 11th on, on the whitened window (null unless pf_friction is asked)"),
 ];
 
 /// Arrow type of a result column.
@@ -266,6 +274,8 @@ pub enum ResultType {
     Float64,
     /// Boolean.
     Boolean,
+    /// List of Float64 (one list per tightening).
+    ListFloat64,
 }
 
 impl ResultType {
@@ -276,6 +286,7 @@ impl ResultType {
             Self::Int64 => DataType::Int64,
             Self::Float64 => DataType::Float64,
             Self::Boolean => DataType::Boolean,
+            Self::ListFloat64 => DataType::List(Arc::new(Field::new_list_field(DataType::Float64, true))),
         }
     }
 }

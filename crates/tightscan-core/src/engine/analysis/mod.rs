@@ -7,6 +7,7 @@ mod breaks;
 mod cusum;
 mod friction;
 mod l1;
+mod pf;
 mod residuals;
 
 use crate::engine::input::{ChannelRow, Sample, Samples, TighteningTable};
@@ -740,6 +741,7 @@ impl Detector {
         let residual = self.residual_row(angle, row, s);
         let l1 = self.l1_row(angle, s);
         let cusum = self.cusum_row(angle, window, s);
+        let pf = if self.config.pf.enabled { self.pf_row(angle, row, s) } else { None };
         let status = match &cusum {
             Err(status) if friction_status.is_ok() => status.clone(),
             _ => friction_status,
@@ -765,6 +767,7 @@ impl Detector {
             residual,
             l1,
             cusum: cusum.ok(),
+            pf,
             decision: None,
         }
     }

@@ -1,0 +1,109 @@
+"""The particle-filter fault test (``pf=True``) against the default rule: size over the noise
+grid of benches/size_grid.py (2 kHz, 0.1 deg; both generators), recall and onset-interval
+coverage on abrupt changes by magnitude (independent generator, CST and HDT), and how the
+statistic moves with the particle count (64 to 4,096) on the same curves.
+
+    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only]
+
+Writes benches/results/pf_quality.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import tightscan
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benches"))
+import independent_generator as ig  # noqa: E402
+import size_grid  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def size(n: int, alpha: float) -> list[dict[str, Any]]:
+    rows = []
+    for generator, make in (("built-in", size_grid.builtin_cell), ("independent", size_grid.independent_cell)):
+        for k, (strategy, (label, colour, phi)) in enumerate((s, noise) for s in size_grid.STRATEGIES for noise in size_grid.NOISES):
+            curves = make(n, 6000 + k, strategy, 2000.0, 0.1, colour, phi)
+            r = tightscan.detect_batch(curves, config={"pf": True, "pf_alpha": alpha, "alpha": alpha})
+            pf = [v for v in r["pf_alarm"].to_pylist() if v is not None]
+            rule = [v for v in r["change_detected"].to_pylist() if v is not None]
+            rows.append({"generator": generator, "strategy": strategy, "noise": label, "pf_ran": len(pf),
+                         "pf_far": float(np.mean(pf)), "rule_far": float(np.mean(rule))})
+            print(f"size {generator:11s} {strategy:4s} {label:9s} pf {100 * rows[-1]['pf_far']:5.1f} % ({len(pf)})  "
+                  f"default rule at the same alpha {100 * rows[-1]['rule_far']:5.1f} %", flush=True)
+    return rows
+
+
+def power(n: int, alpha: float) -> list[dict[str, Any]]:
+    rows = []
+    for strategy in ("CST", "HDT"):
+        for lo, hi in ((0.03, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.3)):
+            fault = ig.FaultConfig(kind="abrupt", magnitude=(lo, hi), signed=True, acts_on="mix")
+            curves, truth = ig.generate(ig.GeneratorConfig(n=n, seed=7000 + int(100 * lo), strategy=strategy, sample_rate_hz=2000.0,
+                                                           encoder_step_deg=0.1, fault=fault))
+            r = tightscan.detect_batch(curves, config={"pf": True, "pf_alpha": alpha, "alpha": alpha})
+            reached = np.array(truth["onset_reached"].to_pylist(), dtype=bool)
+            pf = np.array([bool(v) for v in r["pf_alarm"].to_pylist()])
+            rule = np.array([bool(v) for v in r["change_detected"].to_pylist()])
+            onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
+            a_lo, a_hi, mid = (np.array(r[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi", "pf_change_angle"))
+            ok = pf & reached & np.isfinite(a_lo)
+            cover = float(np.mean((a_lo[ok] <= onset[ok]) & (onset[ok] <= a_hi[ok]))) if ok.any() else float("nan")
+            err = float(np.median(np.abs(mid[ok] - onset[ok]))) if ok.any() else float("nan")
+            width = float(np.median(a_hi[ok] - a_lo[ok])) if ok.any() else float("nan")
+            rows.append({"strategy": strategy, "magnitude": [lo, hi], "reached": int(reached.sum()), "pf_recall": float(pf[reached].mean()),
+                         "rule_recall": float(rule[reached].mean()), "coverage90": cover, "median_onset_error_deg": err,
+                         "median_interval_deg": width})
+            x = rows[-1]
+            print(f"power {strategy} |change| {lo:.2f}-{hi:.2f}: pf recall {x['pf_recall']:.3f}, default rule {x['rule_recall']:.3f} "
+                  f"({x['reached']} reached); 90 % interval covers {cover:.2f}, median error {err:.2f} deg, width {width:.2f} deg", flush=True)
+    return rows
+
+
+def particles(n: int) -> list[dict[str, Any]]:
+    fault = ig.FaultConfig(kind="abrupt", magnitude=(0.03, 0.1), signed=True, acts_on="mix")
+    curves, _ = ig.generate(ig.GeneratorConfig(n=n, seed=7500, strategy="CST", sample_rate_hz=2000.0, encoder_step_deg=0.1, fault=fault))
+    stats = {}
+    rows = []
+    for count in (64, 256, 1024, 4096):
+        t0 = time.perf_counter()
+        r = tightscan.detect_batch(curves, config={"pf": True, "pf_particles": count})
+        seconds = time.perf_counter() - t0
+        stats[count] = np.array(r["pf_statistic"].to_pylist(), dtype=float)
+    reference = stats[4096]
+    for count, s in stats.items():
+        spread = float(np.nanmedian(np.abs(s - reference)))
+        rows.append({"particles": count, "median_abs_diff_vs_4096": spread})
+        print(f"particles {count:5d}: median |ln BF - ln BF(4096)| {spread:.3f}", flush=True)
+    return rows
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--n", type=int, default=200)
+    parser.add_argument("--alpha", type=float, default=0.05)
+    parser.add_argument("--particles-only", action="store_true")
+    args = parser.parse_args()
+    out: dict[str, Any] = {"alpha": args.alpha, "n": args.n}
+    if not args.particles_only:
+        out["size"] = size(args.n, args.alpha)
+        out["power"] = power(args.n, args.alpha)
+    out["particles"] = particles(min(args.n, 100))
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "pf_quality.json").write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,73 @@
+//! The particle-filter step: the fault test of [`crate::detectors::pf`] over the window's
+//! whitened samples, the same samples the break scan tests, judged by the null table
+//! ([`crate::detectors::pf::pf_null_p_value`]).
+
+use crate::detectors::noise::whiten;
+use crate::detectors::pf::{pf_fault_test_whitened, pf_null_p_value, PfConfig, WhitenedLine};
+use crate::engine::input::Sample;
+use crate::engine::rows::{PfOnset, PfRow};
+use crate::engine::Detector;
+
+use super::Scratch;
+
+impl Detector {
+    /// The filter over the whitened window (noise colour taken out by the window's noise
+    /// model, heavy tails made Gaussian), seeded by the configuration's seed plus the row, so
+    /// the result does not depend on how rows are spread over threads. `None` when the window
+    /// is too short for the filter's training.
+    pub(super) fn pf_row<A: Sample>(&self, angle: &[A], row: usize, s: &mut Scratch) -> Option<PfRow> {
+        let (lag, n) = (s.lag, s.n_window);
+        if n <= lag || n > s.wx.len() || n > s.wy.len() {
+            return None;
+        }
+        let cfg = &self.config.pf;
+        let filter = PfConfig { particles: cfg.particles, seed: cfg.seed.wrapping_add(row as u64), keep_track: cfg.friction_track, ..PfConfig::default() };
+        // The whitened constant: the weights of noise growing with the torque (all 1 without),
+        // whitened like the angle and the torque were.
+        s.weighted.clear();
+        if s.weights.is_empty() {
+            s.weighted.resize(s.xs.len(), 1.0);
+        } else {
+            s.weighted.extend_from_slice(&s.weights);
+        }
+        let mut intercept = Vec::with_capacity(s.weighted.len());
+        whiten(&s.weighted, &s.noise.coefficients, &mut intercept);
+        if n > intercept.len() || n > s.xs.len() {
+            return None;
+        }
+        // The test: a continuous kink at the change, whose null distribution is the table's.
+        let line = WhitenedLine { intercept: Some(&intercept[lag..n]), x: &s.wx[lag..n], pivot_x: &s.xs[lag..n], y: &s.wy[lag..n] };
+        let res = pf_fault_test_whitened(&line, self.pf_alpha, &filter)?;
+        // The null table's p-value: Ville's bound (res.p_value) holds too, but at 10-100 times
+        // the simulated tail it leaves most of alpha unused.
+        let p_value = pf_null_p_value(res.statistic, n - lag);
+        let alarm = p_value <= self.pf_alpha;
+        // Where: a friction change steps the torque and turns its line about the snug (where the
+        // clamp force starts); the kink model put simulated changes 2-4 samples early. Run only
+        // for an alarm, so clean curves cost one filter.
+        let placed = if alarm {
+            let pivot = vec![s.snug_x; n - lag];
+            let friction_line = WhitenedLine { pivot_x: &pivot, ..line };
+            let placing = PfConfig { keep_track: false, ..filter.clone() };
+            pf_fault_test_whitened(&friction_line, self.pf_alpha, &placing).and_then(|r| r.onset).or(res.onset)
+        } else {
+            res.onset
+        };
+        let at = |k: usize| s.index.get(k + lag).map(|&i| (i, angle[i].to_f64()));
+        let onset = placed.and_then(|(mid, lo, hi)| {
+            let (index, angle) = at(mid)?;
+            // A jump "at sample k" happened after sample k - 1: the interval opens there, so a
+            // change placed to one sample still has the width of one sample.
+            let lo_angle = at(lo.saturating_sub(1)).or_else(|| at(lo))?.1;
+            Some(PfOnset { index, angle, lo_angle, hi_angle: at(hi)?.1 })
+        });
+        Some(PfRow {
+            alarm,
+            statistic: res.statistic,
+            p_value,
+            fault_probability: res.fault_probability,
+            onset,
+            friction: res.rate_track,
+        })
+    }
+}

@@ -95,24 +95,19 @@ def test_collinearity_is_reported_and_shows_the_hdt_confounding() -> None:
     json.dumps(doc, allow_nan=False)
 
 
-def test_a_tie_names_both_and_neither_alone() -> None:
-    """Stribeck friction in a CSDT program (fixed seed): the speed law and the channel lag fit
-    the restart after the pause alike and neither keeps a gain with the other in: a tie."""
+def test_stribeck_friction_in_csdt_is_named_alone_not_tied_with_a_lag() -> None:
+    """Stribeck friction in a CSDT program (fixed seed). The speed law and the channel lag fit
+    the restart after the pause nearly alike. With the engine's elastic window ending its
+    search two samples before the start level (so the break detector's start test sees a jump
+    across it), the speed law keeps its gain with the lag in at seeds 1-4 and the true effect is
+    named alone (in the log form at this seed); with the window as it was, the loop reported
+    the tie "speed friction or channel lag" at seed 1. The tie was that close. No test of a
+    genuine tie remains in the reduced matrix (the confusion benchmark still has ties)."""
     d, _ = _run("CSDT", ig.SpeedFriction(form="stribeck", coeff=(0.08, 0.15)))
     claims = _claims(d)
-    assert claims and len(claims[0]) > 1, claims
-    first = next(e for e in d.effects if e.level == "within_tightening")
-    assert "speed_dependent_friction" in first.names
-    assert first.name == " or ".join(first.names)
-    ties = d.details["ties"]
-    assert ties and ties[0]["names"] == first.names
-    assert all(x["verdict"] == "tie" for x in ties[0]["evidence"])
-    assert all(not x["term_gain_with_competitor_in"]["significant"] and not x["competitor_gain_with_term_in"]["significant"] for x in ties[0]["evidence"])
-    # no member of the tie is named alone anywhere
-    for name in first.names:
-        assert [name] not in claims
-    doc = d.to_dict()
-    assert doc["effects"][0]["names"] == first.names
+    assert claims and claims[0] == ["speed_dependent_friction"], claims
+    assert all("channel_delay" not in c for c in claims), claims
+    assert not d.details["ties"]
 
 
 @pytest.mark.parametrize("strategy,seed", [("CST", 11), ("CSDT", 12), ("HDT", 13), ("mix", 14), ("HDT", 15), ("mix", 16)])

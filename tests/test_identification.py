@@ -97,9 +97,9 @@ def test_collinearity_is_reported_and_shows_the_hdt_confounding() -> None:
 
 def test_stribeck_friction_in_csdt_is_named_alone_not_tied_with_a_lag() -> None:
     """Stribeck friction in a CSDT program (fixed seed). The speed law and the channel lag fit
-    the restart after the pause nearly alike. With the engine's elastic window ending its
-    search two samples before the start level (so the break detector's start test sees a jump
-    across it), the speed law keeps its gain with the lag in at seeds 1-4 and the true effect is
+    the restart after the pause nearly alike. With the engine's elastic window starting
+    two samples before its start level (so the break detector's start test sees a jump across
+    it), the speed law keeps its gain with the lag in at seeds 1-4 and the true effect is
     named alone (in the log form at this seed); with the window as it was, the loop reported
     the tie "speed friction or channel lag" at seed 1. The tie was that close. No test of a
     genuine tie remains in the reduced matrix (the confusion benchmark still has ties)."""

@@ -67,16 +67,16 @@ impl Detector {
             let extra = s.x.len() - n;
             tail_test(wx, wy, min_segment(nw) - 1 + extra, 0.0, &mut s.prefix).map(|t| {
                 let start = t.start + lag;
-                let (a, b) = line(&s.xs[..start], &s.y[..start]);
-                let tail_len = (s.xs.len() - start) as f64;
-                let deviation = s.xs[start..].iter().zip(&s.y[start..]).map(|(xi, yi)| yi - a - b * xi).sum::<f64>() / tail_len;
+                let deviation = mean_deviation((&s.xs[..start], &s.y[..start]), (&s.xs[start..], &s.y[start..]));
                 (t, s.index[start], deviation)
             })
         } else {
             None
         };
-        let tail_alpha = self.break_alpha * breaks.tail_fraction;
-        let tail_alarm = tail.is_some_and(|(t, _, dev)| t.p_value <= tail_alpha && (beyond_step(dev) || t.p_value <= 0.01 * tail_alpha));
+        // An end or start test alarms beyond an encoder step, or far enough below its alpha that
+        // a step cannot explain it.
+        let end_alarm = |p_value: f64, alpha: f64, deviation: f64| p_value <= alpha && (beyond_step(deviation) || p_value <= 0.01 * alpha);
+        let tail_alarm = tail.is_some_and(|(t, _, dev)| end_alarm(t.p_value, self.break_alpha * breaks.tail_fraction, dev));
 
         // Start test: the end test on the window read backwards, over every head the scan
         // cannot isolate (shorter than its minimum segment). The head is the part before the
@@ -100,15 +100,13 @@ impl Detector {
             // built-in simulator's grid to 0.64 %, below the goal's 0.7 x alpha.
             tail_test(&s.reversed_x, &s.reversed_y, min_segment(nw) - 1, s.noise.gain_log_se, &mut s.prefix).map(|t| {
                 let first_after = nw - t.start + lag;
-                let (a, b) = line(&xs[first_after..], &y[first_after..]);
-                let deviation = xs[..first_after].iter().zip(&y[..first_after]).map(|(xi, yi)| yi - a - b * xi).sum::<f64>() / first_after as f64;
+                let deviation = mean_deviation((&xs[first_after..], &y[first_after..]), (&xs[..first_after], &y[..first_after]));
                 (t, first_after, deviation)
             })
         } else {
             None
         };
-        let head_alpha = self.break_alpha * breaks.head_fraction;
-        let head_alarm = head.is_some_and(|(t, _, dev)| t.p_value <= head_alpha && (beyond_step(dev) || t.p_value <= 0.01 * head_alpha));
+        let head_alarm = head.is_some_and(|(t, _, dev)| end_alarm(t.p_value, self.break_alpha * breaks.head_fraction, dev));
 
         let (curvature_p_value, smooth_fits_better) = match curvature(&s.xs[..n], &s.weights, wx, &wy[..nw], &s.noise.coefficients, s.snug_x, &mut s.line_residuals) {
             Some((p, rss_quad, rss_drift)) => {
@@ -177,6 +175,13 @@ fn predictive_critical_value(n: usize, alpha: f64, gain_log_se: f64) -> f64 {
         }
     }
     hi
+}
+
+/// Mean deviation of the samples `tested` from the least-squares line through `fitted`, in
+/// torque units: the size of an end or start test's departure.
+fn mean_deviation((fit_x, fit_y): (&[f64], &[f64]), (x, y): (&[f64], &[f64])) -> f64 {
+    let (a, b) = line(fit_x, fit_y);
+    x.iter().zip(y).map(|(xi, yi)| yi - a - b * xi).sum::<f64>() / x.len() as f64
 }
 
 /// Residual sum of squares of the least-squares line through `x`, `y`.

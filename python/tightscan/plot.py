@@ -290,6 +290,16 @@ def _onset(ax: Axes, row: Mapping[str, Any]) -> None:
         ax.axvline(onset, color="k", ls="--", lw=1.2, label=f"detected onset {onset:.1f} deg", gid="change_onset")
 
 
+def _alarm_and_onset(ax: Axes, row: Mapping[str, Any], detector: str, fired: bool = True) -> None:
+    """A detector's own alarm angle (when it fired) and the rule's detected onset, on a panel
+    over angle."""
+    alarm = _num(row, f"{detector}_alarm_angle")
+    if fired and alarm is not None:
+        ax.axvline(alarm, color=DETECTOR_COLOURS[detector], ls=":", lw=1.2, label=f"alarm {alarm:.1f} deg", gid=f"{detector}_alarm_angle")
+    _onset(ax, row)
+    ax.set_xlabel("angle [deg]")
+
+
 def _not_run(ax: Axes, what: str, status: str) -> None:
     ax.text(0.5, 0.5, f"{what} did not run on this tightening\n(status: {status})", ha="center", va="center", transform=ax.transAxes, fontsize=8, gid="not_run")
     ax.set_xticks([])
@@ -341,11 +351,7 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any, *, config: Con
         ax_cusum.plot(c.angle, c.upper, ".-", ms=3, lw=0.9, color=DETECTOR_COLOURS["cusum"], label="S+ (rate up)", gid="cusum:upper")
         ax_cusum.plot(c.angle, c.lower, ".-", ms=3, lw=0.9, color="tab:cyan", label="S- (rate down)", gid="cusum:lower")
         ax_cusum.axhline(c.threshold, color="k", ls=":", lw=1, label=f"threshold h = {c.threshold:.3g}", gid="cusum:threshold")
-        alarm = _num(row, "cusum_alarm_angle")
-        if row.get("cusum_alarm") and alarm is not None:
-            ax_cusum.axvline(alarm, color=DETECTOR_COLOURS["cusum"], ls=":", lw=1.2, label=f"alarm {alarm:.1f} deg", gid="cusum_alarm_angle")
-        _onset(ax_cusum, row)
-        ax_cusum.set_xlabel("angle [deg]")
+        _alarm_and_onset(ax_cusum, row, "cusum", fired=bool(row.get("cusum_alarm")))
         ax_cusum.set_ylabel("statistic [sigma]")
         ax_cusum.set_title(f"kappa {c.kappa:.3g}; max {max(float(np.max(c.upper)), float(np.max(c.lower))):.3g}", loc="right", fontsize=8)
         _legend(ax_cusum, fontsize=7)
@@ -358,11 +364,7 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any, *, config: Con
     if m is not None and len(m.angle):
         ax_l1.plot(m.angle, m.statistic, ".-", ms=3, lw=0.9, color=DETECTOR_COLOURS["l1"], label="|Q(m, k)|", gid="l1:statistic")
         ax_l1.plot(m.angle, m.boundary, color="k", ls=":", lw=1, label=f"boundary g(m, k, {m.gamma:.2g}), c = {m.critical_value:.3g}", gid="l1:boundary")
-        alarm = _num(row, "l1_alarm_angle")
-        if alarm is not None:
-            ax_l1.axvline(alarm, color=DETECTOR_COLOURS["l1"], ls=":", lw=1.2, label=f"alarm {alarm:.1f} deg", gid="l1_alarm_angle")
-        _onset(ax_l1, row)
-        ax_l1.set_xlabel("angle [deg]")
+        _alarm_and_onset(ax_l1, row, "l1")
         ax_l1.set_ylabel("cumulated signs")
         ax_l1.set_title(f"m = {m.training} training blocks", loc="right", fontsize=8)
         _legend(ax_l1, fontsize=7)

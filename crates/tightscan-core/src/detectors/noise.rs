@@ -1417,6 +1417,41 @@ mod tests {
     }
 
     #[test]
+    fn the_heavy_tail_score_never_screens_out_what_the_t_fit_calls_heavy() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal, StudentT};
+        // The engine fits the t only where the score reaches 1 (HEAVY_TAIL_SCREEN): over
+        // Gaussian, t8 and t4 residuals in two groups on different scales (a rundown and a
+        // window front), no fit beyond the likelihood ratio's 1 % point may have a score below
+        // 1, and Gaussian scores must be about standard normal (the screen skips most fits).
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let (mut heavy, mut missed, mut gaussian_below) = (0, 0, 0);
+        for nu in [f64::INFINITY, 8.0, 4.0] {
+            let t = StudentT::new(if nu.is_finite() { nu } else { 1e6 }).unwrap();
+            for _ in 0..300 {
+                let mut draw = |n: usize, scale: f64| -> Vec<f64> {
+                    (0..n).map(|_| scale * if nu.is_finite() { t.sample(&mut rng) } else { normal.sample(&mut rng) }).collect()
+                };
+                let (rundown, front) = (draw(256, 1.0), draw(80, 3.0));
+                let groups = [rundown.as_slice(), front.as_slice()];
+                let score = heavy_tail_score(&groups);
+                let lr = fit_student_t_groups(&groups).unwrap().lr;
+                if lr > 5.41 {
+                    heavy += 1;
+                    missed += usize::from(score < 1.0);
+                }
+                if !nu.is_finite() {
+                    gaussian_below += usize::from(score < 1.0);
+                }
+            }
+        }
+        assert!(heavy > 300, "only {heavy} fits found heavy tails");
+        assert_eq!(missed, 0, "{missed} of {heavy} heavy-tailed fits screened out");
+        assert!((220..=290).contains(&gaussian_below), "{gaussian_below} of 300 Gaussian scores below 1");
+    }
+
+    #[test]
     fn the_student_t_fit_finds_the_degrees_of_freedom_and_tells_a_normal_apart() {
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal, StudentT};

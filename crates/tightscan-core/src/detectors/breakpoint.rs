@@ -202,9 +202,12 @@ pub struct TailTest {
 ///
 /// `gain_log_se`: the standard error of the whitening filter's log gain, as for
 /// [`sup_lr_predictive_p_value`]; each tail's p-value is averaged over it (0: the exact F tail).
-/// The engine's start test (this test on the window read backwards) uses it; see
-/// `engine/analysis/breaks.rs` for why its end test does not.
-pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, gain_log_se: f64, prefix: &mut Vec<(f64, f64, f64, f64, f64)>) -> Option<TailTest> {
+/// With `by_tail_length`, a tail of k samples is averaged over (k - 1) / k of it: a whitening
+/// off by a little leaves the whitened noise with a small lag-1 correlation psi, and the
+/// variance of a k-sample sum then grows by about 1 + 2 psi (k - 1) / k, nothing for one
+/// sample and the whole long-run factor for long tails. The full average on every tail made
+/// the end test's p-values too large on short tails (see `engine/analysis/breaks.rs`).
+pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, gain_log_se: f64, by_tail_length: bool, prefix: &mut Vec<(f64, f64, f64, f64, f64)>) -> Option<TailTest> {
     use statrs::distribution::{ContinuousCDF, FisherSnedecor};
     let n = x.len();
     const MIN_FRONT: usize = 10;
@@ -258,7 +261,8 @@ pub fn tail_test(x: &[f64], y: &[f64], max_tail: usize, gain_log_se: f64, prefix
         let m = n - k;
         let p_k = match FisherSnedecor::new(k as f64, (m - 2) as f64) {
             Ok(dist) if gain_log_se > 0.0 => {
-                crate::detectors::noise::NORMAL_NODES.iter().map(|(z, w)| w * dist.sf(f * (-2.0 * gain_log_se * z).exp())).sum()
+                let se = if by_tail_length { gain_log_se * (k - 1) as f64 / k as f64 } else { gain_log_se };
+                crate::detectors::noise::NORMAL_NODES.iter().map(|(z, w)| w * dist.sf(f * (-2.0 * se * z).exp())).sum()
             }
             Ok(dist) => dist.sf(f),
             Err(_) => continue,
@@ -502,7 +506,7 @@ mod tests {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
         let x: Vec<f64> = (0..n).map(|i| (i as f64).powf(1.3) * 0.1).collect(); // uneven, like HDT
         let y: Vec<f64> = x.iter().map(|&v| 1.0 + 2.0 * v + 0.05 * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)).collect();
-        let t = tail_test(&x, &y, 1, 0.0, &mut Vec::new()).unwrap();
+        let t = tail_test(&x, &y, 1, 0.0, false, &mut Vec::new()).unwrap();
         let m = n - 1;
         let mut front = Sums::default();
         (0..m).for_each(|i| front.add(x[i], y[i]));
@@ -534,7 +538,7 @@ mod tests {
             let y: Vec<f64> = (0..n)
                 .map(|i| drift * i.saturating_sub(n - 25) as f64 + <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
                 .collect();
-            let t = tail_test(&x, &y, max_tail, 0.0, &mut Vec::new()).unwrap();
+            let t = tail_test(&x, &y, max_tail, 0.0, false, &mut Vec::new()).unwrap();
             let rss = |hi: usize| {
                 let mut s = Sums::default();
                 (0..hi).for_each(|i| s.add(x[i], y[i]));
@@ -570,7 +574,7 @@ mod tests {
             .map_init(Vec::new, |prefix, r| {
                 let mut rng = Xoshiro256PlusPlus::seed_from_u64(4_000 + r as u64);
                 let y: Vec<f64> = (0..n).map(|_| <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)).collect();
-                (tail_test(&x, &y, 1, 0.0, prefix).unwrap().p_value, tail_test(&x, &y, 10, 0.0, prefix).unwrap().p_value)
+                (tail_test(&x, &y, 1, 0.0, false, prefix).unwrap().p_value, tail_test(&x, &y, 10, 0.0, false, prefix).unwrap().p_value)
             })
             .collect();
         for alpha in [0.05, 0.01] {
@@ -599,7 +603,7 @@ mod tests {
                 .enumerate()
                 .map(|(i, &v)| 3.0 * v + if i == n - 1 { 8.0 } else { 0.0 } + <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
                 .collect();
-            let t = tail_test(&x, &y, min_segment(n) - 1, 0.0, &mut Vec::new()).unwrap();
+            let t = tail_test(&x, &y, min_segment(n) - 1, 0.0, false, &mut Vec::new()).unwrap();
             found += usize::from(t.p_value <= 0.001);
             placed += usize::from(t.start == n - 1);
             let scan = sup_lr_scan(&x, &y, min_segment(n), &mut Vec::new()).unwrap();

@@ -45,6 +45,10 @@ pub struct Phases {
     pub line: Line,
     /// Start of the post-yield zone, when the gradient falls before the peak.
     pub yield_angle: Option<f64>,
+    /// First sample of the seating zone before the final rise (a tenth of the rise's angle
+    /// span before its knee), which the prevailing torque leaves out: the rundown before it
+    /// is level torque plus noise.
+    pub seating_start: usize,
 }
 
 /// Settings of the phase finder beyond the elastic window's.
@@ -307,6 +311,7 @@ pub fn find_phases<A: Sample, T: Sample>(
         scratch.values.extend((first..=knee).map(|i| torque[i].to_f64()));
     }
     let prevailing = median_in_place(&mut scratch.values).min(peak);
+    let seating_start = angle[..knee].partition_point(|a| a.to_f64() <= to);
 
     // Window by levels of the rise above the prevailing torque, walking forward from the knee.
     let rise = peak - prevailing;
@@ -385,6 +390,7 @@ pub fn find_phases<A: Sample, T: Sample>(
         torque_rate: line.slope,
         line,
         yield_angle,
+        seating_start,
     })
 }
 

@@ -63,7 +63,7 @@ from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
 from .stribeck import speed_law_forms
-from .refine import REFINABLE, refine_per_tightening, spread_summary
+from .refine import REFINABLE, StribeckLaw, refine_per_tightening, spread_summary
 
 #: the parameter of each effect whose per-tightening spread is reported (the first present)
 _PRIMARY_PARAMETER = ("tau_ms", "J_kg_m2", "a_eff", "b_eff", "elasticity_at_reference", "a_prevailing", "kappa")
@@ -301,8 +301,13 @@ def _diagnose(
             return None
         pc_, _pk_, _zn_, zc_, _ = assemble(model_)
         directions: dict[str, list[F64]] = {}
+        laws: dict[str, StribeckLaw] = {}
         for key in comps:
             held = model_[key]
+            if held.info.get("law") == "stribeck" and held.static_at is not None and len(idx_[key]) == 2:
+                # static part, viscous part and Stribeck speed per tightening, jointly
+                laws[key] = StribeckLaw(held.static_at, held.columns[1], float(held.info["stribeck_speed_rpm"]))
+                continue
             if held.info.get("law") == "stribeck" and held.extension and len(idx_[key]) == 2:
                 # static part, viscous part, and the Stribeck speed (its derivative, times s_eff)
                 b_static, b_viscous = (float(fit_.beta[i]) for i in idx_[key])
@@ -323,7 +328,7 @@ def _diagnose(
                     paths.append(tau_now * step * lag_at.columns[0])
             if len(paths) == 2:
                 directions[key] = [(paths[0] - paths[1]) / (1.1 - 1 / 1.1)]
-        return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions)
+        return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions, laws)
 
     model: dict[str, _Term] = {}
     base, _ = evaluate_with(model, None)
@@ -717,6 +722,7 @@ def _diagnose(
 
         profile: list[dict[str, Any]] = []
         best_form: tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term] | None = None
+        best_by_exponent: dict[float, tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term]] = {}
         for cand in grid:
             trial = {k: (cand if k == key else t) for k, t in model.items()}
             fit_c, idx_c = evaluate_with(trial, None)
@@ -724,6 +730,10 @@ def _diagnose(
             profile.append(shape | {"rmse": fit_c.rmse})
             if best_form is None or fit_c.rmse < best_form[0].rmse:
                 best_form = (fit_c, idx_c, trial, cand)
+            if cand.info.get("law") == "stribeck":
+                ex = float(cand.info["stribeck_exponent"])
+                if ex not in best_by_exponent or fit_c.rmse < best_by_exponent[ex][0].rmse:
+                    best_by_exponent[ex] = (fit_c, idx_c, trial, cand)
         if best_form is None:
             continue
         test = _gain_test(current, best_form[0], alpha / max(families, 1), min_gain)
@@ -736,6 +746,22 @@ def _diagnose(
             "shapes_tried": len(grid),
             "grid": profile,
         }
+        if test["significant"] and best_form[3].info.get("law") == "stribeck" and len(best_by_exponent) > 1:
+            # the exponent by the out-of-sample RMSE with each tightening's constants refined:
+            # with v_s drawn per tightening, the pooled fit prefers the exponent whose curve is
+            # the population's average (a mixture of Gaussian decays has an exponential-like
+            # tail), while each tightening follows the exponent of its own law
+            refined_by_exponent: dict[str, float] = {}
+            chosen = best_form
+            chosen_rmse = math.inf
+            for ex, cand_fit in sorted(best_by_exponent.items()):
+                ref = _refine_model(cand_fit[2], cand_fit[0], cand_fit[1])
+                rmse_ex = ref["fit"].rmse if ref is not None and ref["significant"] else cand_fit[0].rmse
+                refined_by_exponent[f"{ex:g}"] = rmse_ex
+                if rmse_ex < chosen_rmse:
+                    chosen, chosen_rmse = cand_fit, rmse_ex
+            best_form = chosen
+            speed_forms[key]["exponent_by_refined_rmse"] = refined_by_exponent
         if test["significant"]:
             current, current_idx, model = best_form[0], best_form[1], best_form[2]
     # the constant of each named effect per tightening (random effects around the pooled value,

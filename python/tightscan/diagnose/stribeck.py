@@ -116,11 +116,21 @@ def speed_law_forms(
                 ),
             }
 
+        def static_at(v_rpm: F64, delta: float = delta) -> tuple[F64, F64]:
+            # the static column and its derivative by ln v_s, each sample at its tightening's
+            # own Stribeck speed ``v_rpm`` (per sample)
+            vs = 6.0 * np.maximum(v_rpm, 1e-3)
+            xs, xr = (om / vs) ** delta, (ref / vs) ** delta
+            es, er = np.exp(-xs), np.exp(-xr)
+            col = np.nan_to_num(fr * (es - er))
+            slope = np.nan_to_num(fr * delta * (xs * es - xr * er))
+            return (col, slope) if tau_lp <= 0 else tuple(_lowpass_filter_many(s, [col, slope], tau_lp))  # type: ignore[return-value]
+
         info = {"law": "stribeck", "speed_source": s.speed_source, "stribeck_speed_rpm": v_s_rpm, "stribeck_exponent": delta}
         if tau_lp > 0:
             info["filtered_by_channel_low_pass_ms"] = 1000 * tau_lp
         # each grid point its own tag: the engine caches projections by column name
-        out.append(_Term("speed_dependent_friction", description, False, ["s_eff", "k_eff"], cols, params, info, key, tag + len(out), shape))
+        out.append(_Term("speed_dependent_friction", description, False, ["s_eff", "k_eff"], cols, params, info, key, tag + len(out), shape, static_at))
     # the logarithmic law with an offset speed, ln(1 + v / v0): ln(v / v_ref) is its limit
     # v0 -> 0, and it flattens below v0 (a lubricant film that does not thin at standstill)
     description_log = EFFECT_NAMES["speed_dependent_friction"].replace("ln(v / v_ref)", "ln(1 + v / v0)")

@@ -698,6 +698,8 @@ def _diagnose(
     # when, at its best shape parameters on the grid, it passes the loop's gain test against
     # that law at alpha over the grid (Bonferroni)
     speed_forms: dict[str, Any] = {}
+    # the refinement of the Stribeck form chosen, kept so that it is not run twice
+    refined_form: tuple[_Fit, dict[str, Any] | None] | None = None
     for key, held in list(model.items()):
         if held.name != "speed_dependent_friction":
             continue
@@ -730,7 +732,7 @@ def _diagnose(
             profile.append(shape | {"rmse": fit_c.rmse})
             if best_form is None or fit_c.rmse < best_form[0].rmse:
                 best_form = (fit_c, idx_c, trial, cand)
-            if cand.info.get("law") == "stribeck":
+            if cand.info.get("law") == "stribeck" and cand.info.get("stribeck_exponent") is not None:
                 ex = float(cand.info["stribeck_exponent"])
                 if ex not in best_by_exponent or fit_c.rmse < best_by_exponent[ex][0].rmse:
                     best_by_exponent[ex] = (fit_c, idx_c, trial, cand)
@@ -760,6 +762,7 @@ def _diagnose(
                 refined_by_exponent[f"{ex:g}"] = rmse_ex
                 if rmse_ex < chosen_rmse:
                     chosen, chosen_rmse = cand_fit, rmse_ex
+                    refined_form = (cand_fit[0], ref)
             best_form = chosen
             speed_forms[key]["exponent_by_refined_rmse"] = refined_by_exponent
         if test["significant"]:
@@ -767,7 +770,7 @@ def _diagnose(
     # the constant of each named effect per tightening (random effects around the pooled value,
     # out of sample): the reported parameter stays the pooled one, its spread is reported beside
     pooled_fit = current
-    refinement = _refine_model(model, current, current_idx)
+    refinement = refined_form[1] if refined_form is not None and refined_form[0] is current else _refine_model(model, current, current_idx)
     if refinement is not None and refinement["significant"]:
         current = refinement["fit"]
     final = current

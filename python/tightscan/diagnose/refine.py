@@ -44,11 +44,36 @@ REFINABLE = ("channel_delay", "inertia", "speed_dependent_friction", "speed_depe
 #: tightenings of one table, nor grow without bound
 FACTOR_BOUNDS = (0.0, 3.0)
 
-#: samples per block of the split on which each tightening's Stribeck constants are estimated
-#: (each block's estimates predict the samples of the other blocks): short, because the law acts
-#: in a speed dip of some ten samples, which the loop's own blocks (1/16 of a window) often hold
-#: whole, leaving the other half nothing to learn the tightening's law from
-STRIBECK_BLOCK = 2
+#: groups of sample blocks within each tightening for the out-of-sample fit of a Stribeck law's
+#: per-tightening constants (each group predicted from the other three): short blocks, because
+#: the law acts in a speed dip of some ten samples, which the loop's own blocks (1/16 of a
+#: window) often hold whole, leaving the other half nothing to learn the tightening's law from
+STRIBECK_GROUPS = 4
+#: the noise correlation between neighbouring blocks that is tolerated (block length from it)
+BLOCK_CORRELATION = 0.2
+
+
+def _decorrelation_block(eng: _Engine, resid: F64) -> int:
+    """Samples per block such that the noise of neighbouring blocks is nearly independent
+    (lag correlation below ``BLOCK_CORRELATION``): 1 for white noise. The noise's lag-1
+    correlation phi comes from the first differences of the in-sample residual over the rundown
+    samples (where a speed law of the elastic window is zero, and smooth misfit hardly enters
+    a difference): for AR(1) noise their lag-1 correlation is -(1 - phi) / 2. Capped at the
+    loop's own block length."""
+    s = eng.s
+    # a difference at i: samples i - 1 and i of one tightening's rundown; pairs of neighbours
+    valid = np.r_[False, (s.gid[1:] == s.gid[:-1]) & (s.seg[1:] == 1) & (s.seg[:-1] == 1)]
+    d = np.r_[0.0, np.diff(resid)]
+    pair = valid[1:] & valid[:-1]
+    if int(np.sum(pair)) < 20:
+        return 1
+    a, b = d[:-1][pair], d[1:][pair]
+    den = math.sqrt(float(np.sum(a * a) * np.sum(b * b)))
+    r1 = float(np.sum(a * b)) / den if den > 0 else -0.5
+    phi = min(max(1.0 + 2.0 * r1, 0.0), 0.99)
+    if phi <= BLOCK_CORRELATION:
+        return 1
+    return int(min(math.ceil(math.log(BLOCK_CORRELATION) / math.log(phi)), max(2, int(np.median(np.bincount(s.gid[s.seg == 0]))) // 16)))
 
 
 def _dersimonian_laird(d: F64, v: F64) -> float:
@@ -325,9 +350,12 @@ def _refine_stribeck(
     key = s.gid * 2 + s.seg
     first_of = np.r_[True, key[1:] != key[:-1]]
     rank = np.arange(len(key)) - np.maximum.accumulate(np.where(first_of, np.arange(len(key)), 0))
-    f0 = (((rank // STRIBECK_BLOCK) % 2) == 0).astype(np.float64)
+    block = _decorrelation_block(eng, fit.resid)
+    group = (rank // block) % STRIBECK_GROUPS
     e_new = e.copy()
-    for w_fit, other in ((f0, f0 == 0), (1.0 - f0, f0 > 0)):
+    for k in range(STRIBECK_GROUPS):
+        other = group == k
+        w_fit = (~other).astype(np.float64)
         theta_h, _, _ = _stribeck_map(eng, pcols, base_oos + u_oos, law, theta0_oos, w_fit)
         shift = contribution(bounded(theta_h, theta0_oos)) - u_oos
         # what the declared columns take of the change, in the loop's own protocol

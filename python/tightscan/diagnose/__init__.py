@@ -1062,7 +1062,9 @@ def _refinement_details(refinement: dict[str, Any] | None, rmse_pooled: float, r
         "rmse_after": rmse_after,
         "protocol": (
             "out of sample: pooled coefficients fitted without the tightening's fold, the between-tightening variance "
-            "without that fold, each tightening's factor on one alternate block of its samples predicting the other; "
+            "without that fold, each tightening's factors on three of four groups of short blocks of its samples "
+            "predicting the fourth (block length from the noise's correlation; a Stribeck law's three constants jointly, "
+            "MAP under a normal population); the declared columns in the loop's own protocol; "
             "used in rmse_after when its per-tightening improvement passes the one-sided t test at alpha"
         ),
     }

@@ -18,11 +18,20 @@ nothing moves.
 
 Honesty of the RMSE after: the refined model goes through the loop's own out-of-sample
 protocol. The pooled coefficients are those fitted without the tightening's fold; ``tau^2`` is
-estimated without that fold; ``d_j`` is estimated on one of the alternate blocks of samples
-within the tightening and predicts the other, as for every per-tightening parameter. The
-refinement enters ``rmse_after`` only when its out-of-sample improvement passes the loop's
-one-sided test at ``alpha``. It runs after the loop has named its effects, so it cannot change
-what is named or claimed.
+estimated without that fold; within the tightening, its samples are dealt in short blocks to
+four groups, and ``d_j`` estimated on three groups predicts the fourth (blocks of one sample
+for white noise, longer where the noise is correlated, ``_decorrelation_block``: short, because
+an effect may act in a stretch shorter than the loop's own blocks, as a Stribeck law in a
+speed dip); the declared columns keep the loop's own protocol, so no sample's value enters its
+own prediction. The refinement enters ``rmse_after`` only when its out-of-sample improvement
+passes the loop's one-sided test at ``alpha``. It runs after the loop has named its effects, so
+it cannot change what is named; a further claim must keep its gain with the held effects
+refined.
+
+A Stribeck law (``stribeck.py``) has three constants whose effect is far from linear in one of
+them (the Stribeck speed, where the speeds seen lie in the tail of its decay): they are fitted
+per tightening jointly, maximum a posteriori under a normal population estimated by EM
+(``_stribeck_map``), instead of one linear step from the pooled values.
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ import math
 from typing import Any, Callable, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from .fit import _Engine, _Fit, _one_sided_tests
 from .prepare import F64
@@ -44,11 +54,12 @@ REFINABLE = ("channel_delay", "inertia", "speed_dependent_friction", "speed_depe
 #: tightenings of one table, nor grow without bound
 FACTOR_BOUNDS = (0.0, 3.0)
 
-#: groups of sample blocks within each tightening for the out-of-sample fit of a Stribeck law's
-#: per-tightening constants (each group predicted from the other three): short blocks, because
-#: the law acts in a speed dip of some ten samples, which the loop's own blocks (1/16 of a
-#: window) often hold whole, leaving the other half nothing to learn the tightening's law from
-STRIBECK_GROUPS = 4
+#: groups of sample blocks within each tightening for the out-of-sample fit of its constants
+#: (each group predicted from the other three): short blocks, because an effect may act in a
+#: short stretch only (a Stribeck law in a speed dip of some ten samples, which the loop's own
+#: blocks, 1/16 of a window, often hold whole, leaving the other half nothing to learn the
+#: tightening's constant from)
+WITHIN_GROUPS = 4
 #: the noise correlation between neighbouring blocks that is tolerated (block length from it)
 BLOCK_CORRELATION = 0.2
 
@@ -74,6 +85,27 @@ def _decorrelation_block(eng: _Engine, resid: F64) -> int:
     if phi <= BLOCK_CORRELATION:
         return 1
     return int(min(math.ceil(math.log(BLOCK_CORRELATION) / math.log(phi)), max(2, int(np.median(np.bincount(s.gid[s.seg == 0]))) // 16)))
+
+
+def _sample_groups(eng: _Engine, block: int) -> npt.NDArray[np.int64]:
+    """Each sample's group: blocks of ``block`` samples dealt in turn to ``WITHIN_GROUPS``
+    groups within each (tightening, segment)."""
+    s = eng.s
+    key = s.gid * 2 + s.seg
+    first_of = np.r_[True, key[1:] != key[:-1]]
+    rank = np.arange(len(key)) - np.maximum.accumulate(np.where(first_of, np.arange(len(key)), 0))
+    out: npt.NDArray[np.int64] = (rank // block) % WITHIN_GROUPS
+    return out
+
+
+def _in_loop_protocol(eng: _Engine, pcols: Sequence[F64], v: F64) -> F64:
+    """``v`` less what the tightening's declared columns take of it, fitted on the half of the
+    loop's blocks that does not hold the sample (the loop's out-of-sample protocol)."""
+    g = eng.g
+    _, p0 = g.fit(list(pcols), [v], w=eng.h0)
+    _, p1 = g.fit(list(pcols), [v], w=eng.h1)
+    out: F64 = v - np.where(eng.s.half, p1[:, 0], p0[:, 0])
+    return out
 
 
 def _dersimonian_laird(d: F64, v: F64) -> float:
@@ -247,12 +279,13 @@ def refine_per_tightening(
     base_in = s.y - zb_in
 
     lo, hi = FACTOR_BOUNDS[0] - 1.0, FACTOR_BOUNDS[1] - 1.0
+    group = _sample_groups(eng, _decorrelation_block(eng, fit.resid))
     # one term after the other, each on the residual the ones before it left (in practice one
     # named effect; with two the second is refined with the first's factors in)
     for key, comps in terms.items():
         law = stribeck.get(key) if stribeck is not None else None
         if law is not None and len(comps) == 2:
-            e, base_in, out_terms[key] = _refine_stribeck(eng, pcols, zcols, fit, comps, law, e, base_oos, base_in)
+            e, base_in, out_terms[key] = _refine_stribeck(eng, pcols, zcols, fit, comps, law, e, base_oos, base_in, group)
             continue
         us_oos: list[F64] = []
         us_in: list[F64] = []
@@ -273,12 +306,15 @@ def refine_per_tightening(
         # the variances of each fold from the tightenings outside it
         tau2_fold = np.array([[_dersimonian_laird(d_full[eng.fold_t != f, c], V_full[eng.fold_t != f, c, c]) for c in range(k)] for f in range(eng.n_folds)])
         t2 = tau2_fold[eng.fold_t]
-        # each half predicts the other
+        # each group of sample blocks predicted from the others; what the declared columns take
+        # of the effect, in the loop's own protocol (fitted on the other half of its blocks)
+        ru_loop = [_in_loop_protocol(eng, pcols, u) for u in us_oos]
         e_new = e.copy()
-        for w_fit, other in ((eng.h0, eng.h1 > 0), (eng.h1, eng.h0 > 0)):
-            d_h, V_h, ru_h = _factor_fit(eng, pcols, base_oos, us_oos, w_fit)
+        for kk in range(WITHIN_GROUPS):
+            other = group == kk
+            d_h, V_h, _ = _factor_fit(eng, pcols, base_oos, us_oos, (~other).astype(np.float64))
             shrunk = np.clip(_shrink(d_h, V_h, t2), lo, hi)
-            pred = sum((shrunk[s.gid, c] * ru_h[c] for c in range(k)), np.zeros(len(s.y)))
+            pred = sum((shrunk[s.gid, c] * ru_loop[c] for c in range(k)), np.zeros(len(s.y)))
             e_new = np.where(other, e_new - pred, e_new)
         d_shrunk = np.clip(_shrink(d_full, V_full, np.broadcast_to(tau2, d_full.shape)), lo, hi)
         e = e_new
@@ -311,18 +347,17 @@ def refine_per_tightening(
 
 
 def _refine_stribeck(
-    eng: _Engine, pcols: Sequence[F64], zcols: Sequence[F64], fit: _Fit, comps: list[list[int]], law: StribeckLaw, e: F64, base_oos: F64, base_in: F64
+    eng: _Engine, pcols: Sequence[F64], zcols: Sequence[F64], fit: _Fit, comps: list[list[int]], law: StribeckLaw, e: F64, base_oos: F64, base_in: F64, group: npt.NDArray[np.int64]
 ) -> tuple[F64, F64, dict[str, Any]]:
     """A Stribeck law refined per tightening, all three constants jointly (``_stribeck_map``):
     the out-of-sample residual, the in-sample base with the refined law in, and the term's
     factors for the report (static and viscous coefficient over the pooled ones, 1 + the change
     of ln v_s).
 
-    Out of sample: a tightening's constants are estimated on alternate blocks of
-    ``STRIBECK_BLOCK`` samples and predict the samples of the other blocks; the declared
-    columns keep the loop's own protocol (fitted on the other half of the loop's blocks), so
-    no sample's own value enters its prediction and the residual compares with the pooled
-    one like for like."""
+    Out of sample: a tightening's constants are estimated on three of the ``group`` s of its
+    samples and predict the fourth; the declared columns keep the loop's own protocol (fitted
+    on the other half of the loop's blocks), so no sample's own value enters its prediction and
+    the residual compares with the pooled one like for like."""
     s, g = eng.s, eng.g
     i_s, i_k = comps[0][0], comps[1][0]
     l0 = math.log(max(law.stribeck_speed_rpm, 1e-3))
@@ -347,21 +382,13 @@ def _refine_stribeck(
 
     b_oos = fit.beta_folds[eng.fold_t][:, [i_s, i_k]]
     u_oos, theta0_oos = pooled(b_oos)
-    key = s.gid * 2 + s.seg
-    first_of = np.r_[True, key[1:] != key[:-1]]
-    rank = np.arange(len(key)) - np.maximum.accumulate(np.where(first_of, np.arange(len(key)), 0))
-    block = _decorrelation_block(eng, fit.resid)
-    group = (rank // block) % STRIBECK_GROUPS
     e_new = e.copy()
-    for k in range(STRIBECK_GROUPS):
+    for k in range(WITHIN_GROUPS):
         other = group == k
         w_fit = (~other).astype(np.float64)
         theta_h, _, _ = _stribeck_map(eng, pcols, base_oos + u_oos, law, theta0_oos, w_fit)
         shift = contribution(bounded(theta_h, theta0_oos)) - u_oos
-        # what the declared columns take of the change, in the loop's own protocol
-        _, p0 = g.fit(list(pcols), [shift], w=eng.h0)
-        _, p1 = g.fit(list(pcols), [shift], w=eng.h1)
-        e_new = np.where(other, e_new - (shift - np.where(s.half, p1[:, 0], p0[:, 0])), e_new)
+        e_new = np.where(other, e_new - _in_loop_protocol(eng, pcols, shift), e_new)
     b_in = np.broadcast_to(fit.beta[[i_s, i_k]], (g.n, 2))
     u_in, theta0_in = pooled(b_in)
     theta, mu, var = _stribeck_map(eng, pcols, base_in + u_in, law, theta0_in, None)

@@ -280,28 +280,32 @@ def refine_per_tightening(
 
     lo, hi = FACTOR_BOUNDS[0] - 1.0, FACTOR_BOUNDS[1] - 1.0
     group = _sample_groups(eng, _decorrelation_block(eng, fit.resid))
-    # one term after the other, each on the residual the ones before it left (in practice one
-    # named effect; with two the second is refined with the first's factors in)
+    # a Stribeck law first (its own joint fit of three constants per tightening), then the
+    # factors of every other named effect in one joint fit per tightening: two effects whose
+    # contributions overlap (a lag and a speed law, which cancel where both act) are refined
+    # together, not the second on what the first left
+    us_oos: list[F64] = []
+    us_in: list[F64] = []
+    owner: list[str] = []
     for key, comps in terms.items():
         law = stribeck.get(key) if stribeck is not None else None
         if law is not None and len(comps) == 2:
             e, base_in, out_terms[key] = _refine_stribeck(eng, pcols, zcols, fit, comps, law, e, base_oos, base_in, group)
             continue
-        us_oos: list[F64] = []
-        us_in: list[F64] = []
         if directions is not None and key in directions:
-            us_oos, us_in = list(directions[key]), list(directions[key])
+            key_oos, key_in = list(directions[key]), list(directions[key])
         else:
-            for idx in comps:
-                us_oos.append(sum((zcols[i] * fit.beta_folds[fold, i] for i in idx), np.zeros(len(s.y))))
-                us_in.append(sum((zcols[i] * fit.beta[i] for i in idx), np.zeros(len(s.y))))
-        keep = [i for i, u in enumerate(us_in) if np.any(u != 0)]
-        if not keep:
-            continue
-        us_oos, us_in = [us_oos[i] for i in keep], [us_in[i] for i in keep]
+            key_oos = [sum((zcols[i] * fit.beta_folds[fold, i] for i in idx), np.zeros(len(s.y))) for idx in comps]
+            key_in = [sum((zcols[i] * fit.beta[i] for i in idx), np.zeros(len(s.y))) for idx in comps]
+        for u_oos, u_in in zip(key_oos, key_in):
+            if np.any(u_in != 0):
+                us_oos.append(u_oos)
+                us_in.append(u_in)
+                owner.append(key)
+    if us_in:
         k = len(us_in)
         # all samples: the per-tightening estimates and the between-tightening variances
-        d_full, V_full, ru_full = _factor_fit(eng, pcols, base_in, us_in, None)
+        d_full, V_full, _ = _factor_fit(eng, pcols, base_in, us_in, None)
         tau2 = np.array([_dersimonian_laird(d_full[:, c], V_full[:, c, c]) for c in range(k)])
         # the variances of each fold from the tightenings outside it
         tau2_fold = np.array([[_dersimonian_laird(d_full[eng.fold_t != f, c], V_full[eng.fold_t != f, c, c]) for c in range(k)] for f in range(eng.n_folds)])
@@ -319,15 +323,18 @@ def refine_per_tightening(
         d_shrunk = np.clip(_shrink(d_full, V_full, np.broadcast_to(tau2, d_full.shape)), lo, hi)
         e = e_new
         base_in = base_in - sum((d_shrunk[s.gid, c] * us_in[c] for c in range(k)), np.zeros(len(s.y)))
-        out_terms[key] = {
-            "between_tightening_sd_relative": math.sqrt(float(tau2[0])),
-            "between_tightening_sd_relative_by_component": [math.sqrt(float(v)) for v in tau2],
-            "tau2_by_fold": tau2_fold,
-            "factor": 1.0 + d_shrunk[:, 0],
-            "factor_raw": 1.0 + d_full[:, 0],
-            "factors": [1.0 + d_shrunk[:, c] for c in range(k)],
-            "factors_raw": [1.0 + d_full[:, c] for c in range(k)],
-        }
+        for key in dict.fromkeys(owner):
+            cs = [c for c in range(k) if owner[c] == key]
+            out_terms[key] = {
+                "between_tightening_sd_relative": math.sqrt(float(tau2[cs[0]])),
+                "between_tightening_sd_relative_by_component": [math.sqrt(float(tau2[c])) for c in cs],
+                "tau2_by_fold": tau2_fold[:, cs],
+                "factor": 1.0 + d_shrunk[:, cs[0]],
+                "factor_raw": 1.0 + d_full[:, cs[0]],
+                "factors": [1.0 + d_shrunk[:, c] for c in cs],
+                "factors_raw": [1.0 + d_full[:, c] for c in cs],
+                "refined_jointly_with": [o for o in dict.fromkeys(owner) if o != key],
+            }
     if not out_terms:
         return None
     mse_t = g.mean(e * e)

@@ -754,16 +754,16 @@ def _diagnose(
             # the population's average (a mixture of Gaussian decays has an exponential-like
             # tail), while each tightening follows the exponent of its own law
             refined_by_exponent: dict[str, float] = {}
-            chosen = best_form
+            chosen_form = best_form
             chosen_rmse = math.inf
             for ex, cand_fit in sorted(best_by_exponent.items()):
                 ref = _refine_model(cand_fit[2], cand_fit[0], cand_fit[1])
                 rmse_ex = ref["fit"].rmse if ref is not None and ref["significant"] else cand_fit[0].rmse
                 refined_by_exponent[f"{ex:g}"] = rmse_ex
                 if rmse_ex < chosen_rmse:
-                    chosen, chosen_rmse = cand_fit, rmse_ex
+                    chosen_form, chosen_rmse = cand_fit, rmse_ex
                     refined_form = (cand_fit[0], ref)
-            best_form = chosen
+            best_form = chosen_form
             speed_forms[key]["exponent_by_refined_rmse"] = refined_by_exponent
         if test["significant"]:
             current, current_idx, model = best_form[0], best_form[1], best_form[2]

@@ -1060,6 +1060,7 @@ def _refinement_details(refinement: dict[str, Any] | None, rmse_pooled: float, r
         "p_value": refinement["p_value"],
         "used_in_rmse_after": refinement["significant"],
         "rmse_after": rmse_after,
+        "block_samples": refinement["block_samples"],
         "protocol": (
             "out of sample: pooled coefficients fitted without the tightening's fold, the between-tightening variance "
             "without that fold, each tightening's factors on three of four groups of short blocks of its samples "

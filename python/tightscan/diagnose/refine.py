@@ -69,8 +69,10 @@ def _decorrelation_block(eng: _Engine, resid: F64) -> int:
     (lag correlation below ``BLOCK_CORRELATION``): 1 for white noise. The noise's lag-1
     correlation phi comes from the first differences of the in-sample residual over the rundown
     samples (where a speed law of the elastic window is zero, and smooth misfit hardly enters
-    a difference): for AR(1) noise their lag-1 correlation is -(1 - phi) / 2. Capped at the
-    loop's own block length."""
+    a difference): for AR(1) noise their lag-1 correlation is -(1 - phi) / 2. Misfit the
+    differences keep (an effect still pooled that acts in the rundown, as an inertia's
+    transients) reads as correlation and only lengthens the blocks, the cautious side. Capped
+    at the loop's own block length."""
     s = eng.s
     # a difference at i: samples i - 1 and i of one tightening's rundown; pairs of neighbours
     valid = np.r_[False, (s.gid[1:] == s.gid[:-1]) & (s.seg[1:] == 1) & (s.seg[:-1] == 1)]
@@ -279,7 +281,8 @@ def refine_per_tightening(
     base_in = s.y - zb_in
 
     lo, hi = FACTOR_BOUNDS[0] - 1.0, FACTOR_BOUNDS[1] - 1.0
-    group = _sample_groups(eng, _decorrelation_block(eng, fit.resid))
+    block = _decorrelation_block(eng, fit.resid)
+    group = _sample_groups(eng, block)
     # a Stribeck law first (its own joint fit of three constants per tightening), then the
     # factors of every other named effect in one joint fit per tightening: two effects whose
     # contributions overlap (a lag and a speed law, which cancel where both act) are refined
@@ -350,6 +353,7 @@ def refine_per_tightening(
         "rmse_gain": gain,
         "p_value": tests["p_value"],
         "significant": bool(tests["p_value"] < alpha and gain > 0),
+        "block_samples": block,
     }
 
 

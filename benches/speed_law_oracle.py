@@ -48,11 +48,11 @@ def _col(t: pa.Table, name: str) -> np.ndarray:
     return np.array([np.nan if v is None else float(v) for v in t.column(name).to_pylist()])
 
 
-def _truth_forms(s: Any, eng: Any, fit: Any, declared: list[Any], key: str, tag: int, tau_lp: float) -> list[_Term]:
+def _truth_forms(s: Any, eng: Any, fit: Any, declared: list[Any], key: str, tag: int, tau_lp: float, **shapes: Any) -> list[_Term]:
     """In place of ``stribeck.speed_law_forms``: the term the mode asks for."""
     mode, truth = _STATE["mode"], _STATE["truth"]
     if mode == "loop" or s.omega is None:
-        return list(_LOOP_FORMS(s, eng, fit, declared, key, tag, tau_lp))
+        return list(_LOOP_FORMS(s, eng, fit, declared, key, tag, tau_lp, **shapes))
     row = {v: i for i, v in enumerate(truth.column("tightening_id").to_pylist())}
     r = np.array([row[i] for i in s.ids])
     g = s.gid

@@ -49,6 +49,7 @@ from typing import Any, Sequence
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+from scipy.optimize import minimize_scalar
 
 from .._progress import Progress
 from ..exceptions import InvalidParameterError
@@ -62,7 +63,7 @@ from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
-from .stribeck import speed_law_forms
+from .stribeck import STRIBECK_SPEEDS_RPM, speed_law_forms
 from .refine import REFINABLE, StribeckLaw, refine_per_tightening, spread_summary
 
 #: the parameter of each effect whose per-tightening spread is reported (the first present)
@@ -738,6 +739,39 @@ def _diagnose(
                     best_by_exponent[ex] = (fit_c, idx_c, trial, cand)
         if best_form is None:
             continue
+        # the Stribeck speed between the grid's neighbours of the best grid point (Brent on
+        # ln v_s, the same out-of-sample RMSE): the decay seen in its tail changes fast with
+        # v_s, and one shared Stribeck curve (one lubricant) should be met, not bracketed
+        for ex, (fit_b, _idx_b, _trial_b, cand_b) in list(best_by_exponent.items()):
+            v_best = float(cand_b.info["stribeck_speed_rpm"])
+            if v_best not in STRIBECK_SPEEDS_RPM:
+                continue
+            i_grid = STRIBECK_SPEEDS_RPM.index(v_best)
+            raw_source = cand_b.info.get("speed_source") == "speed channel as recorded" and s.omega_raw is not None
+            s_src = dataclasses.replace(s, omega=s.omega_raw) if raw_source else s
+            found: list[tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term]] = []
+
+            def rmse_at(ln_v: float, ex: float = ex, s_src: Any = s_src, raw_source: bool = raw_source, found: list[Any] = found) -> float:
+                nonlocal build
+                build += 1
+                terms = speed_law_forms(s_src, eng, current, declared, key, build, tau_hint, stribeck_shapes=[(math.exp(ln_v), ex)], log_offsets=())
+                if not terms:
+                    return math.inf
+                if raw_source:
+                    terms[0].info["speed_source"] = "speed channel as recorded"
+                trial = {k: (terms[0] if k == key else t) for k, t in model.items()}
+                fit_v, idx_v = evaluate_with(trial, None)
+                if not found or fit_v.rmse < found[0][0].rmse:
+                    found[:] = [(fit_v, idx_v, trial, terms[0])]
+                return fit_v.rmse
+
+            lo_v, hi_v = STRIBECK_SPEEDS_RPM[max(i_grid - 1, 0)], STRIBECK_SPEEDS_RPM[min(i_grid + 1, len(STRIBECK_SPEEDS_RPM) - 1)]
+            minimize_scalar(rmse_at, bounds=(math.log(lo_v), math.log(hi_v)), method="bounded", options={"xatol": 0.02, "maxiter": 12})
+            if found and found[0][0].rmse < fit_b.rmse:
+                best_by_exponent[ex] = found[0]
+                profile.append({k: v for k, v in found[0][3].info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "speed_source")} | {"rmse": found[0][0].rmse, "between_grid_points": True})
+                if found[0][0].rmse < best_form[0].rmse:
+                    best_form = found[0]
         test = _gain_test(current, best_form[0], alpha / max(families, 1), min_gain)
         speed_forms[key] = {
             "law_named": held.info.get("law"),

@@ -290,10 +290,12 @@ def refine_per_tightening(
     us_oos: list[F64] = []
     us_in: list[F64] = []
     owner: list[str] = []
+    stribeck_shift = [np.zeros(len(s.y)) for _ in range(WITHIN_GROUPS)]
     for key, comps in terms.items():
         law = stribeck.get(key) if stribeck is not None else None
         if law is not None and len(comps) == 2:
-            e, base_in, out_terms[key] = _refine_stribeck(eng, pcols, zcols, fit, comps, law, e, base_oos, base_in, group)
+            e, base_in, out_terms[key], shifts = _refine_stribeck(eng, pcols, zcols, fit, comps, law, e, base_oos, base_in, group)
+            stribeck_shift = [a + b for a, b in zip(stribeck_shift, shifts)]
             continue
         if directions is not None and key in directions:
             key_oos, key_in = list(directions[key]), list(directions[key])
@@ -319,7 +321,9 @@ def refine_per_tightening(
         e_new = e.copy()
         for kk in range(WITHIN_GROUPS):
             other = group == kk
-            d_h, V_h, _ = _factor_fit(eng, pcols, base_oos, us_oos, (~other).astype(np.float64))
+            # the Stribeck law as refined without this group in (its per-tightening constants
+            # from the same samples as these factors)
+            d_h, V_h, _ = _factor_fit(eng, pcols, base_oos - stribeck_shift[kk], us_oos, (~other).astype(np.float64))
             shrunk = np.clip(_shrink(d_h, V_h, t2), lo, hi)
             pred = sum((shrunk[s.gid, c] * ru_loop[c] for c in range(k)), np.zeros(len(s.y)))
             e_new = np.where(other, e_new - pred, e_new)
@@ -359,11 +363,12 @@ def refine_per_tightening(
 
 def _refine_stribeck(
     eng: _Engine, pcols: Sequence[F64], zcols: Sequence[F64], fit: _Fit, comps: list[list[int]], law: StribeckLaw, e: F64, base_oos: F64, base_in: F64, group: npt.NDArray[np.int64]
-) -> tuple[F64, F64, dict[str, Any]]:
+) -> tuple[F64, F64, dict[str, Any], list[F64]]:
     """A Stribeck law refined per tightening, all three constants jointly (``_stribeck_map``):
-    the out-of-sample residual, the in-sample base with the refined law in, and the term's
-    factors for the report (static and viscous coefficient over the pooled ones, 1 + the change
-    of ln v_s).
+    the out-of-sample residual, the in-sample base with the refined law in, the term's factors
+    for the report (static and viscous coefficient over the pooled ones, 1 + the change of
+    ln v_s), and per group the change of the law's contribution estimated without that group
+    (what the other effects' factors are then fitted beside).
 
     Out of sample: a tightening's constants are estimated on three of the ``group`` s of its
     samples and predict the fourth; the declared columns keep the loop's own protocol (fitted
@@ -394,12 +399,14 @@ def _refine_stribeck(
     b_oos = fit.beta_folds[eng.fold_t][:, [i_s, i_k]]
     u_oos, theta0_oos = pooled(b_oos)
     e_new = e.copy()
+    shifts: list[F64] = []
     for k in range(WITHIN_GROUPS):
         other = group == k
         w_fit = (~other).astype(np.float64)
         theta_h, _, _ = _stribeck_map(eng, pcols, base_oos + u_oos, law, theta0_oos, w_fit)
         shift = contribution(bounded(theta_h, theta0_oos)) - u_oos
         e_new = np.where(other, e_new - _in_loop_protocol(eng, pcols, shift), e_new)
+        shifts.append(shift)
     b_in = np.broadcast_to(fit.beta[[i_s, i_k]], (g.n, 2))
     u_in, theta0_in = pooled(b_in)
     theta, mu, var = _stribeck_map(eng, pcols, base_in + u_in, law, theta0_in, None)
@@ -418,7 +425,7 @@ def _refine_stribeck(
         "factors_raw": factors,
         "population_mean": {"s_eff": float(mu[0]), "k_eff": float(mu[1]), "stribeck_speed_rpm": math.exp(float(mu[2]))},
         "method": "joint per-tightening fit of the static and viscous coefficients and ln v_s, maximum a posteriori under a normal population (EM)",
-    }
+    }, shifts
 
 
 def spread_summary(pooled: dict[str, Any] | None, factor: F64, factor_raw: F64, sd_rel: float, used: bool) -> dict[str, Any]:

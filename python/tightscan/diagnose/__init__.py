@@ -49,6 +49,7 @@ from typing import Any, Sequence
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+from scipy.optimize import minimize_scalar
 
 from .._progress import Progress
 from ..exceptions import InvalidParameterError
@@ -62,8 +63,8 @@ from .groups import factor_columns, grouping_factor_analysis
 from .prepare import load_table
 from .report import write_report
 from .result import EFFECT_NAMES, Diagnosis, Effect
-from .stribeck import speed_law_forms
-from .refine import REFINABLE, refine_per_tightening, spread_summary
+from .stribeck import STRIBECK_SPEEDS_RPM, speed_law_forms
+from .refine import REFINABLE, StribeckLaw, refine_per_tightening, spread_summary
 
 #: the parameter of each effect whose per-tightening spread is reported (the first present)
 _PRIMARY_PARAMETER = ("tau_ms", "J_kg_m2", "a_eff", "b_eff", "elasticity_at_reference", "a_prevailing", "kappa")
@@ -301,8 +302,13 @@ def _diagnose(
             return None
         pc_, _pk_, _zn_, zc_, _ = assemble(model_)
         directions: dict[str, list[F64]] = {}
+        laws: dict[str, StribeckLaw] = {}
         for key in comps:
             held = model_[key]
+            if held.info.get("law") == "stribeck" and held.static_at is not None and len(idx_[key]) == 2:
+                # static part, viscous part and Stribeck speed per tightening, jointly
+                laws[key] = StribeckLaw(held.static_at, held.columns[1], float(held.info["stribeck_speed_rpm"]))
+                continue
             if held.info.get("law") == "stribeck" and held.extension and len(idx_[key]) == 2:
                 # static part, viscous part, and the Stribeck speed (its derivative, times s_eff)
                 b_static, b_viscous = (float(fit_.beta[i]) for i in idx_[key])
@@ -323,7 +329,7 @@ def _diagnose(
                     paths.append(tau_now * step * lag_at.columns[0])
             if len(paths) == 2:
                 directions[key] = [(paths[0] - paths[1]) / (1.1 - 1 / 1.1)]
-        return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions)
+        return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions, laws)
 
     model: dict[str, _Term] = {}
     base, _ = evaluate_with(model, None)
@@ -693,6 +699,8 @@ def _diagnose(
     # when, at its best shape parameters on the grid, it passes the loop's gain test against
     # that law at alpha over the grid (Bonferroni)
     speed_forms: dict[str, Any] = {}
+    # the refinement of the Stribeck form chosen, kept so that it is not run twice
+    refined_form: tuple[_Fit, dict[str, Any] | None] | None = None
     for key, held in list(model.items()):
         if held.name != "speed_dependent_friction":
             continue
@@ -717,6 +725,7 @@ def _diagnose(
 
         profile: list[dict[str, Any]] = []
         best_form: tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term] | None = None
+        best_by_exponent: dict[float, tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term]] = {}
         for cand in grid:
             trial = {k: (cand if k == key else t) for k, t in model.items()}
             fit_c, idx_c = evaluate_with(trial, None)
@@ -724,8 +733,45 @@ def _diagnose(
             profile.append(shape | {"rmse": fit_c.rmse})
             if best_form is None or fit_c.rmse < best_form[0].rmse:
                 best_form = (fit_c, idx_c, trial, cand)
+            if cand.info.get("law") == "stribeck" and cand.info.get("stribeck_exponent") is not None:
+                ex = float(cand.info["stribeck_exponent"])
+                if ex not in best_by_exponent or fit_c.rmse < best_by_exponent[ex][0].rmse:
+                    best_by_exponent[ex] = (fit_c, idx_c, trial, cand)
         if best_form is None:
             continue
+        # the Stribeck speed between the grid's neighbours of the best grid point (Brent on
+        # ln v_s, the same out-of-sample RMSE): the decay seen in its tail changes fast with
+        # v_s, and one shared Stribeck curve (one lubricant) should be met, not bracketed
+        for ex, (fit_b, _idx_b, _trial_b, cand_b) in list(best_by_exponent.items()):
+            v_best = float(cand_b.info["stribeck_speed_rpm"])
+            if v_best not in STRIBECK_SPEEDS_RPM:
+                continue
+            i_grid = STRIBECK_SPEEDS_RPM.index(v_best)
+            raw_source = cand_b.info.get("speed_source") == "speed channel as recorded" and s.omega_raw is not None
+            s_src = dataclasses.replace(s, omega=s.omega_raw) if raw_source else s
+            found: list[tuple[_Fit, dict[str, list[int]], dict[str, _Term], _Term]] = []
+
+            def rmse_at(ln_v: float, ex: float = ex, s_src: Any = s_src, raw_source: bool = raw_source, found: list[Any] = found) -> float:
+                nonlocal build
+                build += 1
+                terms = speed_law_forms(s_src, eng, current, declared, key, build, tau_hint, stribeck_shapes=[(math.exp(ln_v), ex)], log_offsets=())
+                if not terms:
+                    return math.inf
+                if raw_source:
+                    terms[0].info["speed_source"] = "speed channel as recorded"
+                trial = {k: (terms[0] if k == key else t) for k, t in model.items()}
+                fit_v, idx_v = evaluate_with(trial, None)
+                if not found or fit_v.rmse < found[0][0].rmse:
+                    found[:] = [(fit_v, idx_v, trial, terms[0])]
+                return fit_v.rmse
+
+            lo_v, hi_v = STRIBECK_SPEEDS_RPM[max(i_grid - 1, 0)], STRIBECK_SPEEDS_RPM[min(i_grid + 1, len(STRIBECK_SPEEDS_RPM) - 1)]
+            minimize_scalar(rmse_at, bounds=(math.log(lo_v), math.log(hi_v)), method="bounded", options={"xatol": 0.02, "maxiter": 12})
+            if found and found[0][0].rmse < fit_b.rmse:
+                best_by_exponent[ex] = found[0]
+                profile.append({k: v for k, v in found[0][3].info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "speed_source")} | {"rmse": found[0][0].rmse, "between_grid_points": True})
+                if found[0][0].rmse < best_form[0].rmse:
+                    best_form = found[0]
         test = _gain_test(current, best_form[0], alpha / max(families, 1), min_gain)
         speed_forms[key] = {
             "law_named": held.info.get("law"),
@@ -736,12 +782,29 @@ def _diagnose(
             "shapes_tried": len(grid),
             "grid": profile,
         }
+        if test["significant"] and best_form[3].info.get("law") == "stribeck" and len(best_by_exponent) > 1:
+            # the exponent by the out-of-sample RMSE with each tightening's constants refined:
+            # with v_s drawn per tightening, the pooled fit prefers the exponent whose curve is
+            # the population's average (a mixture of Gaussian decays has an exponential-like
+            # tail), while each tightening follows the exponent of its own law
+            refined_by_exponent: dict[str, float] = {}
+            chosen_form = best_form
+            chosen_rmse = math.inf
+            for ex, cand_fit in sorted(best_by_exponent.items()):
+                ref = _refine_model(cand_fit[2], cand_fit[0], cand_fit[1])
+                rmse_ex = ref["fit"].rmse if ref is not None and ref["significant"] else cand_fit[0].rmse
+                refined_by_exponent[f"{ex:g}"] = rmse_ex
+                if rmse_ex < chosen_rmse:
+                    chosen_form, chosen_rmse = cand_fit, rmse_ex
+                    refined_form = (cand_fit[0], ref)
+            best_form = chosen_form
+            speed_forms[key]["exponent_by_refined_rmse"] = refined_by_exponent
         if test["significant"]:
             current, current_idx, model = best_form[0], best_form[1], best_form[2]
     # the constant of each named effect per tightening (random effects around the pooled value,
     # out of sample): the reported parameter stays the pooled one, its spread is reported beside
     pooled_fit = current
-    refinement = _refine_model(model, current, current_idx)
+    refinement = refined_form[1] if refined_form is not None and refined_form[0] is current else _refine_model(model, current, current_idx)
     if refinement is not None and refinement["significant"]:
         current = refinement["fit"]
     final = current
@@ -1031,9 +1094,12 @@ def _refinement_details(refinement: dict[str, Any] | None, rmse_pooled: float, r
         "p_value": refinement["p_value"],
         "used_in_rmse_after": refinement["significant"],
         "rmse_after": rmse_after,
+        "block_samples": refinement["block_samples"],
         "protocol": (
             "out of sample: pooled coefficients fitted without the tightening's fold, the between-tightening variance "
-            "without that fold, each tightening's factor on one alternate block of its samples predicting the other; "
+            "without that fold, each tightening's factors on three of four groups of short blocks of its samples "
+            "predicting the fourth (block length from the noise's correlation; a Stribeck law's three constants jointly, "
+            "MAP under a normal population); the declared columns in the loop's own protocol; "
             "used in rmse_after when its per-tightening improvement passes the one-sided t test at alpha"
         ),
     }

@@ -200,6 +200,10 @@ class _Term:
     #: constant, the other speed law, a cubic bend): structure left after the effect is in that
     #: such an extension takes up is a misfit of its form, not a further effect
     extension: list[F64] = field(default_factory=list)
+    #: a Stribeck law's static column and its derivative by ln v_s, each sample at a Stribeck
+    #: speed of its own [rpm] (the exponent held): what the per-tightening refinement fits each
+    #: tightening's own Stribeck speed with
+    static_at: Callable[[F64], tuple[F64, F64]] | None = None
 
 
 # ---------------------------------------------------------------------------------------------

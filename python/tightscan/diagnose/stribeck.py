@@ -25,7 +25,7 @@ where the extra shape does not predict better.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -49,12 +49,15 @@ def speed_law_forms(
     key: str,
     tag: int,
     tau_lp: float,
+    stribeck_shapes: Sequence[tuple[float, float]] | None = None,
+    log_offsets: Sequence[float] = LOG_OFFSET_SPEEDS_RPM,
 ) -> list[_Term]:
     """One candidate term per (v_s, delta) of the Stribeck grid whose decay varies inside the
     elastic windows, and one per offset speed v0 of the logarithmic law, built from the fitted
     declared torque as the other speed laws are (never from the measured torque of the
     sample), tagged ``tag``, ``tag + 1`` ... ``tau_lp`` > 0: the columns pass the channel's
-    low-pass."""
+    low-pass. ``stribeck_shapes`` (v_s [rpm], delta) and ``log_offsets`` (v0 [rpm]) in place of
+    the grids: the terms at shapes between grid points."""
     if s.omega is None:
         return []
     g = eng.g
@@ -73,7 +76,8 @@ def speed_law_forms(
     viscous = fr * (om / ref - 1.0)
     out: list[_Term] = []
     description = EFFECT_NAMES["speed_dependent_friction"] + "; Stribeck form: static friction falling to a minimum, then viscous"
-    for v_s_rpm, delta in [(v, dl) for v in STRIBECK_SPEEDS_RPM for dl in STRIBECK_EXPONENTS]:
+    shapes = list(stribeck_shapes) if stribeck_shapes is not None else [(v, dl) for v in STRIBECK_SPEEDS_RPM for dl in STRIBECK_EXPONENTS]
+    for v_s_rpm, delta in shapes:
         v_s = 6.0 * v_s_rpm
         decay = np.exp(-((om / v_s) ** delta))
         e_ref = math.exp(-((ref / v_s) ** delta))
@@ -112,19 +116,29 @@ def speed_law_forms(
                 "note": (
                     "Stribeck form: s_eff = (mu_s - mu_c) / mu(v_ref) and k_eff = k_v v_ref / mu(v_ref), each times the friction share "
                     "of the torque per clamp force; elasticity_at_reference = d ln(T - T_p) / d ln v at v_ref (what a_eff and b_eff "
-                    "of the other laws estimate); v_s and delta chosen by the out-of-sample RMSE on the grid"
+                    "of the other laws estimate); v_s and delta chosen by the out-of-sample RMSE on the grid, v_s then between its neighbours on the grid (Brent)"
                 ),
             }
+
+        def static_at(v_rpm: F64, delta: float = delta) -> tuple[F64, F64]:
+            # the static column and its derivative by ln v_s, each sample at its tightening's
+            # own Stribeck speed ``v_rpm`` (per sample)
+            vs = 6.0 * np.maximum(v_rpm, 1e-3)
+            xs, xr = (om / vs) ** delta, (ref / vs) ** delta
+            es, er = np.exp(-xs), np.exp(-xr)
+            col = np.nan_to_num(fr * (es - er))
+            slope = np.nan_to_num(fr * delta * (xs * es - xr * er))
+            return (col, slope) if tau_lp <= 0 else tuple(_lowpass_filter_many(s, [col, slope], tau_lp))  # type: ignore[return-value]
 
         info = {"law": "stribeck", "speed_source": s.speed_source, "stribeck_speed_rpm": v_s_rpm, "stribeck_exponent": delta}
         if tau_lp > 0:
             info["filtered_by_channel_low_pass_ms"] = 1000 * tau_lp
         # each grid point its own tag: the engine caches projections by column name
-        out.append(_Term("speed_dependent_friction", description, False, ["s_eff", "k_eff"], cols, params, info, key, tag + len(out), shape))
+        out.append(_Term("speed_dependent_friction", description, False, ["s_eff", "k_eff"], cols, params, info, key, tag + len(out), shape, static_at))
     # the logarithmic law with an offset speed, ln(1 + v / v0): ln(v / v_ref) is its limit
     # v0 -> 0, and it flattens below v0 (a lubricant film that does not thin at standstill)
     description_log = EFFECT_NAMES["speed_dependent_friction"].replace("ln(v / v_ref)", "ln(1 + v / v0)")
-    for v0_rpm in LOG_OFFSET_SPEEDS_RPM:
+    for v0_rpm in log_offsets:
         v0 = 6.0 * v0_rpm
         # normalised so that the coefficient is the elasticity at v_ref, as a_eff of ln(v / v_ref)
         col = fr * (np.log1p(om / v0) - math.log1p(ref / v0)) * (ref + v0) / ref

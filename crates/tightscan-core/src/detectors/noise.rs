@@ -657,8 +657,8 @@ fn gain_log_se_by(blocks: &[(Vec<f64>, Vec<f64>)], first_segment: usize, fit: (&
     scale * ((k - 1) as f64).sqrt() * 1.4826 * median(&mut deviations)
 }
 
-/// Replications of the parametric bootstrap of [`bootstrap_gain_log_se`]: the robust sd of 48
-/// estimates is within about 15 % of the true spread, against a spread of `ln(1 - phi)` that
+/// Replications of the parametric bootstrap of [`bootstrap_gain_log_se`]: the sd of 48
+/// estimates is within about 20 % of the true spread, against a spread of `ln(1 - phi)` that
 /// is a factor of two between 128 and 512 noise samples.
 const BOOTSTRAP_REPLICATIONS: usize = 48;
 /// Samples simulated before each block so that it starts from the stationary distribution
@@ -718,7 +718,13 @@ fn bootstrap_gain_log_se(blocks: &[(Vec<f64>, Vec<f64>)], fit: (&[f64], f64), we
     };
     let centre = median(&mut estimates);
     let mut deviations: Vec<f64> = estimates.iter().map(|e| (e - centre).abs()).collect();
-    1.4826 * median(&mut deviations)
+    // Not less than the plain sd: near the stationarity bound most replications sit on it and
+    // their median deviation is 0, while the rest spread by several units of log gain. That is
+    // the gain left unidentified, not known: at 500 Hz with a 0.5 deg encoder (AR(1) 0.85) fits
+    // at the bound took the scan to 5.5 % false alarms with an se of 0.
+    let mean = estimates.iter().sum::<f64>() / estimates.len() as f64;
+    let sd = (estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (estimates.len() - 1).max(1) as f64).sqrt();
+    (1.4826 * median(&mut deviations)).max(sd)
 }
 
 /// The moment equations of [`solve_moments`] for one set of observed local autocovariances:
@@ -1307,7 +1313,7 @@ mod tests {
 
     /// A noise history of three 64-sample blocks (a slow channel's rundown) is too short for
     /// the jackknife; the parametric bootstrap's se of ln(1 - sum phi) must match the spread
-    /// of the estimates it describes (robust sd over 200 series of AR(1) 0.85), where 0 was
+    /// of the estimates it describes (their sd over 200 series of AR(1) 0.85), where 0 was
     /// reported before (13 % false alarms at 500 Hz under AR(1) 0.85 on the independent
     /// generator's HDT curves).
     #[test]
@@ -1336,11 +1342,13 @@ mod tests {
             let mid = v.len() / 2;
             *v.select_nth_unstable_by(mid, f64::total_cmp).1
         };
-        let centre = median(&mut errors);
-        let spread = 1.4826 * median(&mut errors.iter().map(|e| (e - centre).abs()).collect());
+        // The plain sd: the estimates' tail towards the stationarity bound is part of what the
+        // tests must average over.
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let spread = (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (errors.len() - 1) as f64).sqrt();
         let typical = median(&mut ses);
         assert!(errors.len() >= 190, "{} of 200 fits correlated", errors.len());
-        // Measured: spread 0.43, median se 0.34.
+        // Measured: sd 0.75, median se 0.76 (the robust sd alone, 0.34, was half of it).
         assert!((0.6..=1.6).contains(&(typical / spread)), "se {typical:.3} against a spread of {spread:.3}");
     }
 

@@ -67,6 +67,11 @@ impl Detector {
         // channel that uncertainty is large (a few hundred samples of rundown at 500 Hz) and
         // the exact F tail claimed 3-5 of 183 clean CST curves under AR(1) 0.85 (0 with the
         // average), and 4-5 % of clean 2 kHz curves with a 0.5 deg encoder (0.3-1.3 %).
+        // Ending the test one sample before a peak the tool braked into (its shut-off and the
+        // release's start are in that sample, and at 500 Hz it lay 0.6-1.2 Nm below the line)
+        // was tried and dropped: a large friction rise in the last one to three samples lives
+        // in that very sample, and the built-in simulator's recall of such rises fell from
+        // above 0.98 to 0.87.
         let tail = if breaks.tail_fraction > 0.0 {
             let extra = s.x.len() - n;
             tail_test(wx, wy, min_segment(nw) - 1 + extra, s.noise.gain_log_se, true, &mut s.prefix).map(|t| {

@@ -138,33 +138,6 @@ const NOISE_HISTORY: usize = 1024;
 /// Samples before the window whose encoder counts help interpolate the window's staircase.
 const ENCODER_CONTEXT: usize = 256;
 
-/// Angle steps before the peak whose median is the tool's pace at the end of the rise.
-const PACE_STEPS: usize = 8;
-
-/// The last sample of the rise the end test may judge: the peak, unless the tool came to a
-/// stop within the interval before it (its angle step less than half the pace of the
-/// [`PACE_STEPS`] before), in which case the sample before. The shut-off ends the rise inside
-/// that interval: the drive's torque is taken away, the tool brakes and, standing still,
-/// starts to release the joint, so the peak sample may hold part of the release and lie below
-/// the line. It is still the largest sample when the release so far is less than the rise of
-/// one interval, which happens at slow sampling: at 500 Hz on the independent generator's
-/// clean CST curves (AR(1) 0.85) the end test alone claimed 3 of 182 curves on such a sample
-/// (0.6-1.2 Nm below the line, 4-5 innovation sds after whitening). Also ending at the sample
-/// before a peak whose *next* step was short (the tool stands still after it) was tried and
-/// dropped: it raised that cell's false alarms from 1.6 to 3.3 %. A friction change a late
-/// rise shows is seen in the samples before.
-fn last_moving_sample<A: Sample>(angle: &[A], peak: usize) -> usize {
-    if peak < PACE_STEPS + 2 || peak >= angle.len() {
-        return peak;
-    }
-    let step = |i: usize| angle[i].to_f64() - angle[i - 1].to_f64();
-    let mut steps: Vec<f64> = (peak - PACE_STEPS..peak).map(step).collect();
-    let mid = steps.len() / 2;
-    let pace = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
-    let stopping = step(peak) < 0.5 * pace;
-    if pace > 0.0 && stopping { peak - 1 } else { peak }
-}
-
 impl Scratch {
     /// The samples the detectors use, in window coordinates (angle and torque relative to the
     /// window's first sample): the window without its stop ranges (a CSDT pause: relaxation at
@@ -748,7 +721,7 @@ impl Detector {
             s.tested_part = TESTED_AFTER_PAUSE;
         }
         stop_ranges(angle, torque, window, &mut s.stops);
-        let mut tail_end = (phases.yield_angle.is_none() && !cut_at_gap).then_some(last_moving_sample(angle, phases.peak_index));
+        let mut tail_end = (phases.yield_angle.is_none() && !cut_at_gap).then_some(phases.peak_index);
         let relaxation = without_relaxation(
             angle,
             torque,
@@ -870,7 +843,7 @@ impl Detector {
 
 #[cfg(test)]
 mod tests {
-    use super::{last_moving_sample, smooth_angle};
+    use super::smooth_angle;
 
     /// A 0.5 deg encoder at 2 kHz on a tool turning 1.03 encoder steps a sample (about 1000
     /// deg/s): the count rises every sample, by two steps every 33rd, so the recorded angle is
@@ -878,22 +851,6 @@ mod tests {
     /// moves of the beat; with the 256 samples before the window as context the interpolation
     /// follows the true angle to a tenth of a step. Speeds of 0.97 (the beat falls) and 2.02
     /// steps a sample likewise.
-    /// The end test stops before a peak sample at which the tool braked to a standstill (the
-    /// independent generator at 500 Hz: steps of 1.4 deg, then 0.6 deg into the peak), and
-    /// keeps a peak reached at full pace, or with a coarse encoder's uneven steps.
-    #[test]
-    fn the_end_test_stops_before_a_peak_the_tool_braked_into() {
-        let braking: Vec<f64> = (0..12).map(|i| 1.4 * i as f64).chain([15.4 + 0.6, 16.0, 16.0]).collect();
-        assert_eq!(last_moving_sample(&braking, 12), 11);
-        let full_pace: Vec<f64> = (0..13).map(|i| 1.4 * i as f64).chain([16.8, 16.8]).collect();
-        assert_eq!(last_moving_sample(&full_pace, 12), 12);
-        // A 0.5 deg encoder on 1.4 deg steps: 1.5, 1.5, 1.0, ... ; a 1.0 step is no stop.
-        let coarse: Vec<f64> = (0..13).map(|i| (1.4 * i as f64 / 0.5).floor() * 0.5).collect();
-        assert_eq!(last_moving_sample(&coarse, 12), 12);
-        // Too few samples before the peak to know the pace: the peak.
-        assert_eq!(last_moving_sample(&braking[..6], 5), 5);
-    }
-
     #[test]
     fn an_encoder_beat_is_interpolated_with_the_samples_before_the_window() {
         let r = 0.5;

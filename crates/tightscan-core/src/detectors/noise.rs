@@ -160,14 +160,7 @@ fn local_autocovariances(
         // pass for outliers.
         let unit = unit_scale(ys, sd_slope);
         residual.iter_mut().for_each(|r| *r *= unit);
-        let mut sums = vec![0.0; max_lag + 1];
-        let mut pairs = vec![0.0; max_lag + 1];
-        for lag in 0..=max_lag.min(residual.len() - 1) {
-            sums[lag] = residual[lag..].iter().zip(residual.iter()).map(|(a, b)| a * b).sum::<f64>();
-            // The local fit takes LOCAL_TERMS degrees of freedom at lag 0; other lags count their
-            // pairs (the bias this leaves is what `residual_weights` accounts for).
-            pairs[lag] = if lag == 0 { m - LOCAL_TERMS as f64 } else { (residual.len() - lag) as f64 };
-        }
+        let (sums, pairs) = lag_products(residual, max_lag, m);
         per_block.push((sums, pairs, segment == 0));
     }
     if per_block.is_empty() {
@@ -198,6 +191,20 @@ fn local_autocovariances(
         return None;
     }
     Some(gamma.iter().zip(&count).map(|(g, c)| if *c > 0.0 { g / c } else { 0.0 }).collect())
+}
+
+/// Lag product sums of one block's local residuals at lags `0..=max_lag`, with their pair
+/// counts; the block holds `m` samples. The local fit takes LOCAL_TERMS degrees of freedom at
+/// lag 0; other lags count their pairs (the bias this leaves is what `residual_weights`
+/// accounts for).
+fn lag_products(residual: &[f64], max_lag: usize, m: f64) -> (Vec<f64>, Vec<f64>) {
+    let mut sums = vec![0.0; max_lag + 1];
+    let mut pairs = vec![0.0; max_lag + 1];
+    for lag in 0..=max_lag.min(residual.len().saturating_sub(1)) {
+        sums[lag] = residual[lag..].iter().zip(residual.iter()).map(|(a, b)| a * b).sum::<f64>();
+        pairs[lag] = if lag == 0 { m - LOCAL_TERMS as f64 } else { (residual.len() - lag) as f64 };
+    }
+    (sums, pairs)
 }
 
 /// Terms of the local fit whose residuals give the noise: constant, slope and curvature. A
@@ -648,13 +655,21 @@ fn gain_log_se_by(blocks: &[(Vec<f64>, Vec<f64>)], first_segment: usize, fit: (&
     // Robust spread of the leave-a-group-out estimates (1.4826 MAD for their sd; the
     // jackknife's se is sqrt(k - 1) times that sd): a friction change's kink sits in one
     // group, and its estimate alone must not pass for sampling error.
-    let median = |v: &mut Vec<f64>| {
-        let mid = v.len() / 2;
-        *v.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
-    let centre = median(&mut estimates);
-    let mut deviations: Vec<f64> = estimates.iter().map(|e| (e - centre).abs()).collect();
-    scale * ((k - 1) as f64).sqrt() * 1.4826 * median(&mut deviations)
+    scale * ((k - 1) as f64).sqrt() * 1.4826 * median_absolute_deviation(&mut estimates)
+}
+
+/// The upper median of `values` (of an even count, the larger middle one), reordering them.
+fn upper_median(values: &mut [f64]) -> f64 {
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The median absolute deviation from the median of `values` (reordering them): 1.4826 times
+/// it is a robust sd. `values` must not be empty.
+fn median_absolute_deviation(values: &mut [f64]) -> f64 {
+    let centre = upper_median(values);
+    let mut deviations: Vec<f64> = values.iter().map(|e| (e - centre).abs()).collect();
+    upper_median(&mut deviations)
 }
 
 /// Replications of the parametric bootstrap of [`bootstrap_gain_log_se`]: the sd of 48
@@ -704,27 +719,20 @@ fn bootstrap_gain_log_se(blocks: &[(Vec<f64>, Vec<f64>)], fit: (&[f64], f64), we
             xs.clear();
             xs.extend((0..m).map(|i| i as f64));
             quadratic_residuals(&xs, &series[BOOTSTRAP_BURN_IN..], &mut residual);
-            for lag in 0..=p {
-                sums[lag] += residual[lag..].iter().zip(residual.iter()).map(|(a, b)| a * b).sum::<f64>();
-                pairs[lag] += if lag == 0 { (m - LOCAL_TERMS) as f64 } else { (m - lag) as f64 };
-            }
+            let (block_sums, block_pairs) = lag_products(&residual, p, m as f64);
+            sums.iter_mut().zip(&block_sums).for_each(|(a, b)| *a += b);
+            pairs.iter_mut().zip(&block_pairs).for_each(|(a, b)| *a += b);
         }
         let gamma: Vec<f64> = sums.iter().zip(&pairs).map(|(s, n)| s / n.max(1.0)).collect();
         estimates.push(log_gain(&solve_moments(&gamma, &start, weights, block).0));
     }
-    let median = |v: &mut Vec<f64>| {
-        let mid = v.len() / 2;
-        *v.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
-    let centre = median(&mut estimates);
-    let mut deviations: Vec<f64> = estimates.iter().map(|e| (e - centre).abs()).collect();
     // Not less than the plain sd: near the stationarity bound most replications sit on it and
     // their median deviation is 0, while the rest spread by several units of log gain. That is
     // the gain left unidentified, not known: at 500 Hz with a 0.5 deg encoder (AR(1) 0.85) fits
     // at the bound took the scan to 5.5 % false alarms with an se of 0.
     let mean = estimates.iter().sum::<f64>() / estimates.len() as f64;
     let sd = (estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (estimates.len() - 1).max(1) as f64).sqrt();
-    (1.4826 * median(&mut deviations)).max(sd)
+    (1.4826 * median_absolute_deviation(&mut estimates)).max(sd)
 }
 
 /// The moment equations of [`solve_moments`] for one set of observed local autocovariances:
@@ -1338,15 +1346,11 @@ mod tests {
             errors.push((1.0 - m.coefficients.iter().sum::<f64>()).max(f64::MIN_POSITIVE).ln() - 0.15f64.ln());
             ses.push(m.gain_log_se);
         }
-        let median = |v: &mut Vec<f64>| {
-            let mid = v.len() / 2;
-            *v.select_nth_unstable_by(mid, f64::total_cmp).1
-        };
         // The plain sd: the estimates' tail towards the stationarity bound is part of what the
         // tests must average over.
         let mean = errors.iter().sum::<f64>() / errors.len() as f64;
         let spread = (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (errors.len() - 1) as f64).sqrt();
-        let typical = median(&mut ses);
+        let typical = upper_median(&mut ses);
         assert!(errors.len() >= 190, "{} of 200 fits correlated", errors.len());
         // Measured: sd 0.75, median se 0.76 (the robust sd alone, 0.34, was half of it).
         assert!((0.6..=1.6).contains(&(typical / spread)), "se {typical:.3} against a spread of {spread:.3}");

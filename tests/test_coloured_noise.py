@@ -153,24 +153,33 @@ def test_size_and_power_at_phi_0_9_on_the_independent_generator() -> None:
 
 @pytest.mark.slow
 def test_size_on_a_slow_channel_under_coloured_noise_is_bounded() -> None:
-    """500 Hz, AR(1) 0.85 (the independent generator, 0.1 deg encoder): a few hundred samples of
-    rundown hold three or four noise blocks, too few for the jackknife of the whitening's
-    uncertainty, so it comes from a parametric bootstrap; the rundown's blocks end before the
-    seating; the end test averages over that uncertainty. Before those, the rule alarmed on
-    10.9 % of these clean curves (HDT 16.3 %, CST 6.3 %); measured 1.77 % of 734 decided
-    (binomial sd 0.5 points)."""
+    """500 Hz, AR(1) 0.85 (the independent generator; 0.1 deg encoder, and 0.5 deg for CST): a
+    few hundred samples of rundown hold three or four noise blocks, too few for the jackknife of
+    the whitening's uncertainty, so it comes from a parametric bootstrap; the rundown's blocks
+    begin after the tool's start-up and end before the seating; the end test averages over that
+    uncertainty, and a stop sample within an encoder step and a half of the line is no change.
+
+    Before the bootstrap and the seating cut the rule alarmed on 10.9 % of these clean curves.
+    Before the start-up cut, the block holding the start-up step (5-7 times the median block's
+    variance, lag-1 correlation 0) made phi come out below 0.5 in 6.9 % of these curves, and
+    the rule alarmed on 3.05 % of 1,116 decided (CST 0.5 deg 5.5 %: most of its alarms the end
+    test's, on stop samples 0.1-2.3 encoder steps from the line). Measured after: 0.71 % of
+    1,126 decided, no phi below 0.5 (binomial sd at 1 %: 0.3 points)."""
     import independent_generator as ig
 
-    alarms, decided = 0, 0
-    for strategy, seed in (("CST", 2101), ("HDT", 2102)):
+    alarms, decided, lag1 = 0, 0, []
+    for strategy, encoder, seed in (("CST", 0.1, 2101), ("HDT", 0.1, 2102), ("CST", 0.5, 2103)):
         config = ig.GeneratorConfig(
-            n=600, seed=seed, strategy=strategy, sample_rate_hz=500.0, encoder_step_deg=0.1,
+            n=600, seed=seed, strategy=strategy, sample_rate_hz=500.0, encoder_step_deg=encoder,
             noise=ig.NoiseConfig(colour="ar1", phi=0.85),
         )
         curves, _ = ig.generate(config)
-        flags = [v for v in tightscan.detect_batch(curves)["change_detected"].to_pylist() if v is not None]
+        results = tightscan.detect_batch(curves)
+        flags = [v for v in results["change_detected"].to_pylist() if v is not None]
+        lag1 += [v for v in results["noise_lag1"].to_pylist() if v is not None]
         alarms += sum(flags)
         decided += len(flags)
     # A third of the slow channel's curves have too short an elastic window (too_short).
-    assert decided >= 700
-    assert alarms / decided <= 0.025
+    assert decided >= 1000
+    assert sum(v < 0.5 for v in lag1) / len(lag1) <= 0.01
+    assert alarms / decided <= 0.015

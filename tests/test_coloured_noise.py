@@ -183,3 +183,31 @@ def test_size_on_a_slow_channel_under_coloured_noise_is_bounded() -> None:
     assert decided >= 1000
     assert sum(v < 0.5 for v in lag1) / len(lag1) <= 0.01
     assert alarms / decided <= 0.015
+
+
+def test_the_cusum_blocks_under_strong_colour_are_not_flattened_by_the_encoder() -> None:
+    """CST, 2 kHz, AR(1) 0.9, 0.1 deg encoder (independent generator). Near the unit root the
+    whitened angle regressor is mostly the angle's change from sample to sample, and the
+    encoder staircase's leftover after interpolation is such a change: errors in the regressor,
+    which only flatten a block's whitened slope. The CUSUM then read their spread between
+    blocks as a falling torque rate (2,000 clean curves: 18 CUSUM alarms, all `decrease`; none
+    with a 0.01 deg encoder). The CUSUM's blocks now regress on the angle averaged over nine
+    samples in time. The training blocks' dispersion (root mean square of their standardised
+    slopes, about 1 when the blocks' noise is what the model says) shows it: median 1.27 on
+    these 542 decided curves before, 0.905 after (0.91 with a fine encoder)."""
+    import statistics
+
+    import independent_generator as ig
+
+    config = ig.GeneratorConfig(
+        n=600, seed=2111, strategy="CST", sample_rate_hz=2000.0, encoder_step_deg=0.1,
+        noise=ig.NoiseConfig(colour="ar1", phi=0.9),
+    )
+    curves, _ = ig.generate(config)
+    results = tightscan.detect_batch(curves)
+    dispersion = [v for v in results["cusum_dispersion"].to_pylist() if v is not None]
+    alarms = sum(bool(v) for v in results["cusum_alarm"].to_pylist())
+    assert len(dispersion) >= 500
+    assert statistics.median(dispersion) <= 1.05
+    # The CUSUM's share of the rule's alpha is a quarter of 1 %.
+    assert alarms / len(dispersion) <= 0.005

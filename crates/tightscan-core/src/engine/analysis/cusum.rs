@@ -88,13 +88,15 @@ impl Detector {
             });
         }
         // Blocks of the whitened samples, cut by angle (stop samples are already out of them;
-        // a block that touches a stop is left out below, as the wind-up after it is not friction).
+        // a block that touches a stop is left out below, as the wind-up after it is not friction),
+        // on the angle averaged in time (`smooth_wx`): the encoder's leftover staircase, whitened
+        // near the unit root, flattens some blocks' slopes and passed for a falling torque rate.
         let (lag, n) = (s.lag, s.n_window);
         if n < lag + 2 {
             return Err(TighteningStatus::TooShort { samples: n, minimum: lag + 2, what: s.tested_part });
         }
         let gain = 1.0 - s.noise.coefficients.iter().sum::<f64>();
-        block_stats_whitened(&s.x[lag..n], &s.wx[lag..n], &s.wy[lag..n], n_blocks, gain, &mut s.blocks);
+        block_stats_whitened(&s.x[lag..n], &s.smooth_wx[lag..n], &s.wy[lag..n], n_blocks, gain, &mut s.blocks);
         let blocks = &s.blocks;
         let stops = &s.stops;
         let width = blocks.width;

@@ -69,6 +69,10 @@ pub(super) struct Scratch {
     xs: Vec<f64>,
     /// Recorded angles just before the window (window coordinates), for [`smooth_angle`].
     context: Vec<f64>,
+    /// `xs` averaged in time and whitened (weighted as `wx`): the CUSUM's block regressor
+    /// ([`time_smoothed_angle`]).
+    smooth_wx: Vec<f64>,
+    smoothed: Vec<f64>,
     noise_t: Vec<f64>,
     noise_y: Vec<f64>,
     /// Weights of the samples in `x` (empty: all 1): the inverse of the noise sd where the noise
@@ -132,6 +136,10 @@ const MIN_RUNDOWN_BLOCKS: usize = 6;
 /// Lag-1 autocorrelation of the noise model above which it is re-estimated with blocks of
 /// twice [`NOISE_BLOCK`] (the moment solve's bound on a reflection is 0.995).
 const NEAR_UNIT_ROOT: f64 = 0.99;
+/// Half-width in samples of [`time_smoothed_angle`]. Short: the torque follows the angle's own
+/// fast motion (a speed ripple) too, and an average over 16 samples either side took the
+/// built-in simulator's clean curves from 0.73 to 2.2 % false alarms; over 4, 0.73 %.
+const TIME_SMOOTHING: usize = 4;
 /// Samples before the window the noise model may use at least: the channel's noise is the same
 /// in the rundown, and a thousand samples pin phi near 1 where a window's few hundred do not.
 const NOISE_HISTORY: usize = 1024;
@@ -236,6 +244,9 @@ impl Scratch {
         whiten(&self.weighted, phi, &mut self.wx);
         weigh(&self.y, &self.weights, &mut self.weighted);
         whiten(&self.weighted, phi, &mut self.wy);
+        time_smoothed_angle(&self.xs, &self.index, TIME_SMOOTHING, &mut self.smoothed);
+        weigh(&self.smoothed, &self.weights, &mut self.weighted);
+        whiten(&self.weighted, phi, &mut self.smooth_wx);
         self.wf.clear();
         if self.has_force {
             // The noise fit is done with `noise_y`: it stages the clamp force of these samples.
@@ -332,6 +343,41 @@ impl Scratch {
     }
 }
 
+
+/// The angle `xs` (encoder staircase already interpolated) averaged over `half_width` samples
+/// either side, in time, within each run of consecutive samples (`index`), the average narrowed
+/// symmetrically at a run's ends so that an angle linear in time passes unchanged.
+///
+/// Why: near the unit root the whitened regressor `x_t - phi x_{t-1}` is mostly the angle's
+/// sample-to-sample change, and what is left of the encoder's staircase after interpolation is
+/// such a change: errors in the regressor, which only ever flatten a block's whitened slope. The
+/// CUSUM compares block slopes, so their spread from block to block read as decreases of the
+/// torque rate: under AR(1) 0.9 with a 0.1 deg encoder (independent generator, CST, 2 kHz) 18
+/// CUSUM alarms in 2,000 clean curves, all `decrease`, block-slope dispersion 1.21; none and
+/// 0.90 with the average (and none, 0.91, with a 0.01 deg encoder either way).
+fn time_smoothed_angle(xs: &[f64], index: &[usize], half_width: usize, out: &mut Vec<f64>) {
+    out.clear();
+    let n = xs.len().min(index.len());
+    let mut start = 0;
+    while start < n {
+        let mut end = start + 1;
+        while end < n && index[end] == index[end - 1] + 1 {
+            end += 1;
+        }
+        let mut prefix = Vec::with_capacity(end - start + 1);
+        prefix.push(0.0);
+        for &v in &xs[start..end] {
+            prefix.push(prefix[prefix.len() - 1] + v);
+        }
+        for t in start..end {
+            let h = half_width.min(t - start).min(end - 1 - t);
+            let (lo, hi) = (t - h - start, t + h + 1 - start);
+            out.push((prefix[hi] - prefix[lo]) / (hi - lo) as f64);
+        }
+        start = end;
+    }
+    out.extend_from_slice(&xs[n..]);
+}
 
 /// `v` times `weights` into `out` (`v` itself when there are no weights).
 fn weigh(v: &[f64], weights: &[f64], out: &mut Vec<f64>) {
@@ -853,7 +899,7 @@ impl Detector {
 
 #[cfg(test)]
 mod tests {
-    use super::smooth_angle;
+    use super::{smooth_angle, time_smoothed_angle, TIME_SMOOTHING};
 
     /// A 0.5 deg encoder at 2 kHz on a tool turning 1.03 encoder steps a sample (about 1000
     /// deg/s): the count rises every sample, by two steps every 33rd, so the recorded angle is
@@ -914,4 +960,25 @@ mod tests {
         smooth_angle(&[], &line, &index, n, &mut out);
         assert_eq!(out, line);
     }
+
+    #[test]
+    fn the_time_average_keeps_lines_and_runs_and_damps_what_changes_from_sample_to_sample() {
+        // A line in time passes unchanged, ends included; a run after a gap (a stop left out)
+        // is averaged on its own, so a step between runs stays a step.
+        let index: Vec<usize> = (0..40).chain(60..100).collect();
+        let line: Vec<f64> = index.iter().map(|&i| 0.5 + 0.25 * i as f64).collect();
+        let mut out = Vec::new();
+        time_smoothed_angle(&line, &index, TIME_SMOOTHING, &mut out);
+        assert_eq!(out.len(), line.len());
+        assert!(out.iter().zip(&line).all(|(a, b)| (a - b).abs() < 1e-9), "{out:?}");
+        // An alternating error of +-e (a staircase's leftover at two samples a step) shrinks to
+        // e / 9 inside the run, and what whitening near the unit root keeps of it with it.
+        let jagged: Vec<f64> = line.iter().enumerate().map(|(k, v)| v + if k % 2 == 0 { 0.01 } else { -0.01 }).collect();
+        time_smoothed_angle(&jagged, &index, TIME_SMOOTHING, &mut out);
+        let inner = 10..30;
+        assert!(inner.clone().all(|k| (out[k] - line[k]).abs() <= 0.01 / 9.0 + 1e-12));
+        let whitened_error = |v: &[f64]| inner.clone().map(|k| ((v[k] - line[k]) - 0.9 * (v[k - 1] - line[k - 1])).abs()).fold(0.0, f64::max);
+        assert!(whitened_error(&out) < 0.15 * whitened_error(&jagged));
+    }
 }
+

@@ -10,7 +10,8 @@ use crate::engine::traces::CusumTrace;
 use crate::engine::Detector;
 use crate::physics::torque_rate::{block_count, block_stats_whitened, ElasticWindow, PooledFit};
 
-use super::Scratch;
+use super::{time_smoothed_angle, weigh, Scratch, TIME_SMOOTHING};
+use crate::detectors::noise::whiten;
 
 /// Chi-square quantile by Wilson and Hilferty (1931): k (1 - 2/(9k) + z sqrt(2/(9k)))^3.
 fn chi_square_quantile(k: f64, z: f64) -> f64 {
@@ -96,6 +97,9 @@ impl Detector {
             return Err(TighteningStatus::TooShort { samples: n, minimum: lag + 2, what: s.tested_part });
         }
         let gain = 1.0 - s.noise.coefficients.iter().sum::<f64>();
+        time_smoothed_angle(&s.xs, &s.index, TIME_SMOOTHING, &mut s.smoothed);
+        weigh(&s.smoothed, &s.weights, &mut s.weighted);
+        whiten(&s.weighted, &s.noise.coefficients, &mut s.smooth_wx);
         block_stats_whitened(&s.x[lag..n], &s.smooth_wx[lag..n], &s.wy[lag..n], n_blocks, gain, &mut s.blocks);
         let blocks = &s.blocks;
         let stops = &s.stops;

@@ -244,9 +244,6 @@ impl Scratch {
         whiten(&self.weighted, phi, &mut self.wx);
         weigh(&self.y, &self.weights, &mut self.weighted);
         whiten(&self.weighted, phi, &mut self.wy);
-        time_smoothed_angle(&self.xs, &self.index, TIME_SMOOTHING, &mut self.smoothed);
-        weigh(&self.smoothed, &self.weights, &mut self.weighted);
-        whiten(&self.weighted, phi, &mut self.smooth_wx);
         self.wf.clear();
         if self.has_force {
             // The noise fit is done with `noise_y`: it stages the clamp force of these samples.
@@ -364,15 +361,9 @@ fn time_smoothed_angle(xs: &[f64], index: &[usize], half_width: usize, out: &mut
         while end < n && index[end] == index[end - 1] + 1 {
             end += 1;
         }
-        let mut prefix = Vec::with_capacity(end - start + 1);
-        prefix.push(0.0);
-        for &v in &xs[start..end] {
-            prefix.push(prefix[prefix.len() - 1] + v);
-        }
         for t in start..end {
             let h = half_width.min(t - start).min(end - 1 - t);
-            let (lo, hi) = (t - h - start, t + h + 1 - start);
-            out.push((prefix[hi] - prefix[lo]) / (hi - lo) as f64);
+            out.push(xs[t - h..=t + h].iter().sum::<f64>() / (2 * h + 1) as f64);
         }
         start = end;
     }

@@ -107,18 +107,21 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="2 kHz and 0.1 deg only: noise x strategy")
     parser.add_argument(
         "--rates-encoders", action="store_true",
-        help="independent generator only, CST and HDT x 500 Hz / 2 kHz / 10 kHz x 0.01 / 0.1 / 0.5 deg x white and "
-        "AR(1) 0.85, seed 2000 for every cell (benches/README.md's rates x encoders table; --n 300 there)",
+        help="CST, CSDT and HDT x 500 Hz / 2 kHz / 10 kHz x 0.01 / 0.1 / 0.5 deg: the independent generator with white "
+        "and AR(1) 0.85 noise, the built-in simulator with white noise, seed 2000 for every cell (benches/README.md's "
+        "rates x encoders table; --n 300 there)",
     )
     args = parser.parse_args()
     if args.rates_encoders:
-        for strategy, rate, encoder in itertools.product(["CST", "HDT"], RATES, ENCODERS):
+        print("| strategy | rate | encoder | independent, white | independent, AR(1) 0.85 | built-in, white |")
+        print("|---|---|---|---|---|---|")
+        for strategy, rate, encoder in itertools.product(STRATEGIES, RATES, ENCODERS):
             cells = []
-            for colour, phi in (("white", 0.0), ("ar1", 0.85)):
-                results = tightscan.detect_batch(independent_cell(args.n, 2000, strategy, rate, encoder, colour, phi), config={"alpha": args.alpha})
+            for make, colour, phi in ((independent_cell, "white", 0.0), (independent_cell, "ar1", 0.85), (builtin_cell, "white", 0.0)):
+                results = tightscan.detect_batch(make(args.n, 2000, strategy, rate, encoder, colour, phi), config={"alpha": args.alpha})
                 decided = [v for v in results["change_detected"].to_pylist() if v is not None]
                 cells.append(f"{100 * sum(decided) / max(1, len(decided)):.1f}% ({len(decided)})")
-            print(f"| {strategy} | {rate:.0f} Hz | {encoder:g} deg | {cells[0]} | {cells[1]} |", flush=True)
+            print(f"| {strategy} | {rate:.0f} Hz | {encoder:g} deg | {' | '.join(cells)} |", flush=True)
         return 0
     rates, encoders = ([2000.0], [0.1]) if args.quick else (RATES, ENCODERS)
     grid = list(itertools.product(STRATEGIES, rates, encoders, NOISES))

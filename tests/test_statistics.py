@@ -115,6 +115,18 @@ def test_a_slow_encoder_across_a_pause_is_not_a_change() -> None:
     assert sum(decided) / len(decided) <= 0.015
 
 
+def test_an_encoder_offset_under_a_step_is_not_a_change() -> None:
+    """CST at 2 kHz with a 0.5 deg encoder: the noise (0.2 % of the target) is small against an
+    encoder step, and what the interpolated staircase leaves (an offset of a fraction of a step
+    between two stretches) makes breaks of 0.1-0.8 steps that the scan finds at 2-4 times its
+    critical value. Credited at twice the critical value: 27 false alarms in these 1,200 clean
+    curves (2.25 %). Now a break within the encoder-step check needs three times the critical
+    value, or twice with the change of slope alone significant: 12 (1.00 %)."""
+    decided = _clean_with_white_noise(1200, 5301, "CST", 2000.0, 0.5)
+    assert len(decided) >= 1190
+    assert sum(decided) / len(decided) <= 0.015
+
+
 def test_a_pause_on_a_slow_channel_is_left_out() -> None:
     """CSDT at 500 Hz with a 0.5 deg encoder (independent generator, white noise): a count lasts
     a few samples, the pause 12-80. A stop was a run of unchanged angle ten times the window's

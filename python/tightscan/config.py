@@ -97,7 +97,9 @@ class BreakConfig:
     ``alpha`` is its false-alarm probability per tightening, from a shipped null table; ``None``
     takes its share of the decision rule's alpha. A quantised angle encoder makes torque steps
     of one encoder increment (torque rate x resolution); a break is credited only when its jump
-    exceeds ``min_jump_steps`` of them (or its statistic is twice the critical value).
+    exceeds ``min_jump_steps`` of them, or its statistic is three times the critical value, or
+    twice it with the change of slope alone significant (an encoder offset shifts the level; a
+    friction change turns the slope).
 
     The scan needs ten samples or more after a break, so the last samples up to the peak get a
     predictive (Chow) test of their own, with ``tail_fraction`` of ``alpha``: a large friction

@@ -27,3 +27,23 @@ pub fn least_squares_line(x: &[f64], y: &[f64]) -> (f64, f64) {
     let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
     (my - b * mx, b)
 }
+
+/// Least squares of `y` on three regressors, from `rows` of (regressors, y): the coefficients,
+/// (X'X)^-1 and the residual sum of squares, or `None` where X'X is singular or the fit not
+/// finite. The engine's curvature, drift, level-shift and knot fits alike.
+pub fn least_squares_3<I>(rows: I) -> Option<(nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>, f64)>
+where
+    I: Iterator<Item = ([f64; 3], f64)> + Clone,
+{
+    let mut xtx = nalgebra::Matrix3::<f64>::zeros();
+    let mut xty = nalgebra::Vector3::<f64>::zeros();
+    for (x, y) in rows.clone() {
+        let row = nalgebra::Vector3::from(x);
+        xtx += row * row.transpose();
+        xty += row * y;
+    }
+    let inv = xtx.try_inverse()?;
+    let beta = inv * xty;
+    let rss: f64 = rows.map(|(x, y)| (y - beta[0] * x[0] - beta[1] * x[1] - beta[2] * x[2]).powi(2)).sum();
+    (beta.iter().all(|b| b.is_finite()) && rss.is_finite()).then_some((beta, inv, rss))
+}

@@ -2,7 +2,7 @@
 //! test of the last samples up to the peak, with the encoder-step check that keeps angle
 //! quantisation from passing for a friction change.
 
-use crate::detectors::least_squares_line as line;
+use crate::detectors::{least_squares_3, least_squares_line as line};
 use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_predictive_p_value, sup_lr_scan_profile, tail_test};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
@@ -227,16 +227,11 @@ fn slope_change_lr(x: &[f64], y: &[f64], k: usize) -> f64 {
         return 0.0;
     }
     let rss_two = line_rss(&x[..k], &y[..k]) + line_rss(&x[k..], &y[k..]);
-    let mut normal = nalgebra::Matrix3::<f64>::zeros();
-    let mut moment = nalgebra::Vector3::<f64>::zeros();
-    for (i, (&xi, &yi)) in x.iter().zip(y).enumerate() {
-        let row = nalgebra::Vector3::new(1.0, xi, if i >= k { 1.0 } else { 0.0 });
-        normal += row * row.transpose();
-        moment += row * yi;
+    let rows = x.iter().zip(y).enumerate().map(|(i, (&xi, &yi))| ([1.0, xi, if i >= k { 1.0 } else { 0.0 }], yi));
+    match least_squares_3(rows) {
+        Some((_, _, rss_shift)) if rss_two > 0.0 => n as f64 * (rss_shift / rss_two).ln(),
+        _ => 0.0,
     }
-    let Some(c) = normal.lu().solve(&moment) else { return 0.0 };
-    let rss_shift: f64 = x.iter().zip(y).enumerate().map(|(i, (&xi, &yi))| (yi - c[0] - c[1] * xi - if i >= k { c[2] } else { 0.0 }).powi(2)).sum();
-    if rss_two > 0.0 && rss_shift.is_finite() { n as f64 * (rss_shift / rss_two).ln() } else { 0.0 }
 }
 
 /// Mean deviation of the samples `tested` from the least-squares line through `fitted`, in
@@ -271,7 +266,6 @@ fn line_rss(x: &[f64], y: &[f64]) -> f64 {
 /// first whitened sample on; `weights` those of noise that grows with the torque (empty: none),
 /// applied to the square as to the others.
 fn curvature(xs: &[f64], weights: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], snug_x: f64, scratch: &mut Vec<f64>) -> Option<(f64, f64, f64)> {
-    use nalgebra::{Matrix3, Vector3};
     use statrs::distribution::{ContinuousCDF, StudentsT};
     let n = wy.len();
     if n < 8 {
@@ -286,16 +280,7 @@ fn curvature(xs: &[f64], weights: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], s
     crate::detectors::noise::whiten(&squares, phi, scratch);
     let wq = scratch.get(lag..lag + n)?;
     let gain = 1.0 - phi.iter().sum::<f64>();
-    let mut xtx = Matrix3::<f64>::zeros();
-    let mut xty = Vector3::<f64>::zeros();
-    for k in 0..n {
-        let row = Vector3::new(gain, wx[k], wq[k]);
-        xtx += row * row.transpose();
-        xty += row * wy[k];
-    }
-    let inv = xtx.try_inverse()?;
-    let beta = inv * xty;
-    let rss: f64 = (0..n).map(|k| (wy[k] - beta[0] * gain - beta[1] * wx[k] - beta[2] * wq[k]).powi(2)).sum();
+    let (beta, inv, rss) = least_squares_3((0..n).map(|k| ([gain, wx[k], wq[k]], wy[k])))?;
     let df = (n - 3) as f64;
     let se = (rss / df * inv[(2, 2)]).sqrt();
     if !(se > 0.0) {
@@ -317,17 +302,9 @@ fn curvature(xs: &[f64], weights: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], s
             .collect();
         crate::detectors::noise::whiten(&ramps, phi, scratch);
         let Some(wr) = scratch.get(lag..lag + n) else { continue };
-        let mut xtx = Matrix3::<f64>::zeros();
-        let mut xty = Vector3::<f64>::zeros();
-        for k in 0..n {
-            let row = Vector3::new(gain, wx[k], wr[k]);
-            xtx += row * row.transpose();
-            xty += row * wy[k];
+        if let Some((_, _, rss_k)) = least_squares_3((0..n).map(|k| ([gain, wx[k], wr[k]], wy[k]))) {
+            rss_drift = rss_drift.min(rss_k);
         }
-        let Some(inv) = xtx.try_inverse() else { continue };
-        let b = inv * xty;
-        let rss_k: f64 = (0..n).map(|k| (wy[k] - b[0] * gain - b[1] * wx[k] - b[2] * wr[k]).powi(2)).sum();
-        rss_drift = rss_drift.min(rss_k);
     }
     Some((p, rss, rss_drift))
 }

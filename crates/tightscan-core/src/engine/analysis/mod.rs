@@ -515,15 +515,8 @@ fn encoder_knots(t: &[f64], a: &[f64], carrier: f64, resolution: f64, knots: &mu
 /// fix one.
 fn quadratic_through(knots: &[(f64, f64)]) -> Option<(f64, nalgebra::Vector3<f64>)> {
     let centre = knots.iter().map(|k| k.0).sum::<f64>() / knots.len() as f64;
-    let mut normal = nalgebra::Matrix3::<f64>::zeros();
-    let mut moment = nalgebra::Vector3::<f64>::zeros();
-    for &(t, a) in knots {
-        let u = t - centre;
-        let row = nalgebra::Vector3::new(1.0, u, u * u);
-        normal += row * row.transpose();
-        moment += row * a;
-    }
-    normal.lu().solve(&moment).filter(|c| c.iter().all(|v| v.is_finite())).map(|c| (centre, c))
+    let rows = knots.iter().map(|&(t, a)| ([1.0, t - centre, (t - centre).powi(2)], a));
+    crate::detectors::least_squares_3(rows).map(|(c, _, _)| (centre, c))
 }
 
 /// The recorded angle `x` with its encoder quantisation taken out, into `out`, where the

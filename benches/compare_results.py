@@ -88,11 +88,17 @@ def _samples(table: pa.Table) -> int:
 
 
 def _differences(name: str, ref: pa.Table, new: pa.Table, rtol: float) -> list[str]:
+    problems = []
     if ref.schema != new.schema:
-        return [f"{name}: schema differs:\n{ref.schema}\n---\n{new.schema}"]
+        # Columns added (a new detector's) are reported, and the columns both have compared.
+        added = [c for c in new.column_names if c not in ref.column_names]
+        kept = [c for c in new.column_names if c in ref.column_names]
+        if kept != ref.column_names or any(ref.schema.field(c).type != new.schema.field(c).type for c in kept):
+            return [f"{name}: schema differs:\n{ref.schema}\n---\n{new.schema}"]
+        problems.append(f"{name}: columns added: {', '.join(added)}")
+        new = new.select(kept)
     if ref.num_rows != new.num_rows:
         return [f"{name}: {ref.num_rows} rows before, {new.num_rows} now"]
-    problems = []
     for column in ref.column_names:
         a, b = ref[column].to_pylist(), new[column].to_pylist()
         floating = pa.types.is_floating(ref.schema.field(column).type)

@@ -46,9 +46,9 @@ RECALL_FLOOR = {
 # window's first half `model_misfit`: recall about 0.6 whatever the size.
 INCIPIENT_FLOOR = {
     ("CST", "large"): 0.91,  # measured 0.950 (0.965 before the start test)
-    ("CST", "small"): 0.85,  # measured 0.900 (0.870)
+    ("CST", "small"): 0.85,  # measured 0.905 (0.870; 0.890 before the episode scan)
     ("HDT", "large"): 0.93,  # measured 0.970 (0.955)
-    ("HDT", "small"): 0.80,  # measured 0.840 (0.775)
+    ("HDT", "small"): 0.80,  # measured 0.855 (0.775; 0.835 before the episode scan)
 }
 BANDS = {"large": (0.15, 0.45), "small": (0.03, 0.15)}
 
@@ -98,8 +98,10 @@ def clean_alarms() -> np.ndarray:
 def test_false_alarms_of_the_default_rule_are_within_binomial_tolerance_of_alpha(clean_alarms: np.ndarray) -> None:
     # Within 3 binomial sd of alpha over 3,000 clean curves: [0.46 %, 1.54 %], 14 to 46 alarms.
     # A rule alarming on everything (or on a tenth of the curves) fails the upper bound; one
-    # that never alarms fails the lower. Measured 0.90 % at these seeds (CST 0.87 %, HDT
-    # 0.93 %) with the union-bound rule and the start test (0.80 % with a tenth of alpha each
+    # that never alarms fails the lower. Measured 0.80 % at these seeds (CST 0.87 %, HDT
+    # 0.73 %) with the episode scan, which takes its 30 % of the break detector's alpha from
+    # the scan and adds almost no alarms of its own on clean curves; 0.90 % (CST 0.93 %, HDT
+    # 0.87 %) without it, with the union-bound rule and the start test (0.80 % with a tenth of alpha each
     # for it and the end test, a twentieth each now); 0.97 % before the start test (the
     # scan's share of alpha went from 90 % to 80 % of the break detector's); 1.47 % (CST
     # 1.80 %, HDT 1.13 %) with the rule calibrated to the built-in simulator it replaced.
@@ -134,3 +136,23 @@ def test_changes_in_the_window_first_samples_are_found_by_the_start_test() -> No
             assert without <= ceiling, f"{strategy}: recall without the start test {without:.3f}"
             assert results.column("break_head_p_value").null_count == results.num_rows
 
+
+
+def test_intermittent_episodes_are_found_by_the_episode_scan() -> None:
+    """An intermittent fault of 3-10 %, one episode of 4-12 % of the elastic zone (the torque
+    leaves the line for a stretch and comes back to it: a pulse, not a break), all three
+    strategies. The episode scan (`break_episode_fraction` of the break detector's alpha) finds
+    what the scan for one break misses. Measured at this seed, 400 curves: 0.825, 0.760 without
+    the episode scan (30 curves found only with it, 4 only without; seeds 4702 and 4703: 0.825
+    and 0.812 against 0.767 and 0.738)."""
+    fault = ig.FaultConfig(kind="intermittent", magnitude=(0.03, 0.10), signed=True, acts_on="mix", episodes=(1, 1))
+    curves, truth = ig.generate(ig.GeneratorConfig(n=400, seed=4701, strategy="mix", sample_rate_hz=2000.0, encoder_step_deg=0.1,
+                                                   noise=NOISE, fault=fault))
+    reached = np.array(truth.column("onset_reached").to_pylist(), dtype=bool)
+    assert reached.sum() >= 0.8 * 400
+    recall = float(_detected(curves)[reached].mean())
+    results = tightscan.detect_batch(curves, config={"alpha": ALPHA, "break_episode_fraction": 0.0})
+    without = float(np.array([bool(v) for v in results.column("change_detected").to_pylist()])[reached].mean())
+    assert results.column("break_episode_p_value").null_count == results.num_rows
+    assert recall >= 0.79, f"recall {recall:.3f}"
+    assert recall - without >= 0.035, f"recall {recall:.3f}, without the episode scan {without:.3f}"

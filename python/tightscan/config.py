@@ -106,12 +106,17 @@ class BreakConfig:
     rise late in the curve makes the tool reach its target within a sample or two. 0 turns it
     off. It also needs ten samples before a break, so the window's first samples get the same
     test read backwards, with ``head_fraction`` of ``alpha``: an abrupt friction change early
-    in the window makes the torque jump by the clamp force times the change. 0 turns it off."""
+    in the window makes the torque jump by the clamp force times the change. 0 turns it off.
+    An intermittent friction fault leaves a stretch of the window off the line, which returns to
+    it after: a pulse, not a break. The episode scan looks for one such stretch (at least three
+    samples, inside the window, not at a pause), with ``episode_fraction`` of ``alpha``. 0 turns
+    it off."""
 
     alpha: float | None = _DEFAULTS["break_alpha"]
     min_jump_steps: float = _DEFAULTS["break_min_jump_steps"]
     tail_fraction: float = _DEFAULTS["break_tail_fraction"]
     head_fraction: float = _DEFAULTS["break_head_fraction"]
+    episode_fraction: float = _DEFAULTS["break_episode_fraction"]
 
 
 @dataclass(frozen=True)
@@ -227,6 +232,7 @@ class DetectConfig:
             "break_min_jump_steps": self.breaks.min_jump_steps,
             "break_tail_fraction": self.breaks.tail_fraction,
             "break_head_fraction": self.breaks.head_fraction,
+            "break_episode_fraction": self.breaks.episode_fraction,
             "l1_gamma": self.l1.gamma,
             "l1_alpha": self.l1.alpha,
             "alpha": self.decision.alpha,

@@ -45,6 +45,7 @@ pub fn detect_config(dict: Option<&Bound<'_, PyDict>>) -> PyResult<DetectConfig>
             "break_alpha" => c.breaks.alpha = get(py, &key, &v)?,
             "break_min_jump_steps" => c.breaks.min_jump_steps = get(py, &key, &v)?,
             "break_tail_fraction" => c.breaks.tail_fraction = get(py, &key, &v)?,
+            "break_episode_fraction" => c.breaks.episode_fraction = get(py, &key, &v)?,
             "break_head_fraction" => c.breaks.head_fraction = get(py, &key, &v)?,
             "l1_alpha" => c.l1.alpha = get(py, &key, &v)?,
             "l1_gamma" => c.l1.gamma = get(py, &key, &v)?,
@@ -100,6 +101,7 @@ pub fn detect_config_to_dict<'py>(py: Python<'py>, c: &DetectConfig) -> PyResult
     d.set_item("break_alpha", c.breaks.alpha)?;
     d.set_item("break_min_jump_steps", c.breaks.min_jump_steps)?;
     d.set_item("break_tail_fraction", c.breaks.tail_fraction)?;
+    d.set_item("break_episode_fraction", c.breaks.episode_fraction)?;
     d.set_item("break_head_fraction", c.breaks.head_fraction)?;
     d.set_item("l1_alpha", c.l1.alpha)?;
     d.set_item("l1_gamma", c.l1.gamma)?;

@@ -310,17 +310,27 @@ pub static SUP_LR_QUANTILES: [[f64; 8]; 8] = [
 /// Null quantiles by Monte Carlo: `reps` series of n evenly spaced samples with i.i.d. N(0,1)
 /// noise, returns the (1 - alpha) quantile for each alpha of [`TABLE_ALPHA`].
 pub fn simulate_sup_lr_quantiles(n: usize, reps: usize, seed: u64) -> Vec<f64> {
-    let x: Vec<f64> = (0..n).map(|i| i as f64 / n as f64 - 0.5).collect();
     let seg = min_segment(n);
+    simulate_null_quantiles(n, reps, seed, |x, y| sup_lr_scan(x, y, seg, &mut Vec::new()).map_or(0.0, |b| b.statistic))
+}
+
+/// The (1 - alpha) quantiles, for each alpha of [`TABLE_ALPHA`], of `statistic` over `reps`
+/// series of n evenly spaced samples (x centred on 0) with i.i.d. N(0,1) noise; replication r
+/// draws from `seed ^ r * 0x9E3779B97F4A7C15`. The shipped null tables are made by it.
+pub(crate) fn simulate_null_quantiles<S>(n: usize, reps: usize, seed: u64, statistic: S) -> Vec<f64>
+where
+    S: Fn(&[f64], &[f64]) -> f64 + Sync,
+{
+    let x: Vec<f64> = (0..n).map(|i| i as f64 / n as f64 - 0.5).collect();
     let mut stats: Vec<f64> = (0..reps)
         .into_par_iter()
         .map_init(
-            || (Vec::with_capacity(n), Vec::with_capacity(n)),
-            |(y, prefix), r| {
+            || Vec::with_capacity(n),
+            |y, r| {
                 let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ (r as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
                 y.clear();
                 y.extend((0..n).map(|_| <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)));
-                sup_lr_scan(&x, y, seg, prefix).map_or(0.0, |b| b.statistic)
+                statistic(&x, y)
             },
         )
         .collect();
@@ -344,7 +354,7 @@ pub fn sup_lr_critical_value(n: usize, alpha: f64) -> Result<f64> {
             format!("must be in [{}, {}] for the shipped sup-LR table, got {alpha}", TABLE_ALPHA[7], TABLE_ALPHA[0]),
         ));
     }
-    Ok(interpolate(n, |row| interpolate_alpha(row, alpha)))
+    Ok(interpolate(&SUP_LR_QUANTILES, n, |row| interpolate_alpha(row, alpha)))
 }
 
 /// p-value of a sup-LR statistic of a pre-whitened window, averaged over the uncertainty of the
@@ -357,16 +367,33 @@ pub fn sup_lr_critical_value(n: usize, alpha: f64) -> Result<f64> {
 /// fit's error (phi 0.85 estimated 0.03 low leaves lambda = 1.4), and the error of a fit from
 /// a few hundred samples is that large.
 pub fn sup_lr_predictive_p_value(n: usize, statistic: f64, gain_log_se: f64) -> f64 {
+    predictive_p_value(&SUP_LR_QUANTILES, n, statistic, gain_log_se)
+}
+
+/// [`sup_lr_predictive_p_value`] for a statistic of the same scaling whose null quantiles are
+/// `table` (rows [`TABLE_N`], columns [`TABLE_ALPHA`]).
+pub(crate) fn predictive_p_value(table: &[[f64; 8]; 8], n: usize, statistic: f64, gain_log_se: f64) -> f64 {
     if !(gain_log_se > 0.0) {
-        return sup_lr_p_value(n, statistic);
+        return table_p_value(table, n, statistic);
     }
-    crate::detectors::noise::NORMAL_NODES.iter().map(|(z, w)| w * sup_lr_p_value(n, statistic * (-2.0 * gain_log_se * z).exp())).sum()
+    crate::detectors::noise::NORMAL_NODES.iter().map(|(z, w)| w * table_p_value(table, n, statistic * (-2.0 * gain_log_se * z).exp())).sum()
 }
 
 /// Approximate p-value of a sup-LR statistic for n samples: the table inverted, linearly in
 /// ln alpha; clamped to [0.001, 0.5] (reported as such beyond the table).
 pub fn sup_lr_p_value(n: usize, statistic: f64) -> f64 {
-    let quantiles: Vec<f64> = (0..TABLE_ALPHA.len()).map(|j| interpolate(n, |row| row[j])).collect();
+    table_p_value(&SUP_LR_QUANTILES, n, statistic)
+}
+
+/// Critical value at `alpha` for n samples from `table` (as [`sup_lr_critical_value`]);
+/// `alpha` must lie within [`TABLE_ALPHA`].
+pub(crate) fn table_critical_value(table: &[[f64; 8]; 8], n: usize, alpha: f64) -> f64 {
+    interpolate(table, n, |row| interpolate_alpha(row, alpha))
+}
+
+/// p-value of `statistic` for n samples from `table` (as [`sup_lr_p_value`]).
+pub(crate) fn table_p_value(table: &[[f64; 8]; 8], n: usize, statistic: f64) -> f64 {
+    let quantiles: Vec<f64> = (0..TABLE_ALPHA.len()).map(|j| interpolate(table, n, |row| row[j])).collect();
     if statistic <= quantiles[0] {
         return TABLE_ALPHA[0];
     }
@@ -391,17 +418,17 @@ fn interpolate_alpha(row: &[f64; 8], alpha: f64) -> f64 {
     row[TABLE_ALPHA.len() - 1]
 }
 
-fn interpolate(n: usize, value: impl Fn(&[f64; 8]) -> f64) -> f64 {
+fn interpolate(table: &[[f64; 8]; 8], n: usize, value: impl Fn(&[f64; 8]) -> f64) -> f64 {
     let n = (n as f64).clamp(TABLE_N[0] as f64, TABLE_N[TABLE_N.len() - 1] as f64);
     for i in 1..TABLE_N.len() {
         if n <= TABLE_N[i] as f64 {
             let (la, lb) = ((TABLE_N[i - 1] as f64).ln(), (TABLE_N[i] as f64).ln());
             let t = (n.ln() - la) / (lb - la);
-            let (va, vb) = (value(&SUP_LR_QUANTILES[i - 1]), value(&SUP_LR_QUANTILES[i]));
+            let (va, vb) = (value(&table[i - 1]), value(&table[i]));
             return va + t * (vb - va);
         }
     }
-    value(&SUP_LR_QUANTILES[TABLE_N.len() - 1])
+    value(&table[TABLE_N.len() - 1])
 }
 
 #[cfg(test)]

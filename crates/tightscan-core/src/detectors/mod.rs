@@ -6,6 +6,7 @@
 pub mod breakpoint;
 pub mod critical_values;
 pub mod cusum;
+pub mod episode;
 pub mod kde;
 pub mod monitor;
 pub mod noise;

@@ -99,6 +99,7 @@ pub(super) fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         f(|r| r.breaks.map(|b| b.p_value)),
         f(|r| r.breaks.and_then(|b| b.tail_p_value)),
         f(|r| r.breaks.and_then(|b| b.head_p_value)),
+        f(|r| r.breaks.and_then(|b| b.episode_p_value)),
         i(|r| r.breaks.map(|b| b.change_index as i64)),
         f(|r| r.breaks.map(|b| b.change_angle)),
         f(|r| r.breaks.map(|b| b.jump)),

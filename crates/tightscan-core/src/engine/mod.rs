@@ -172,13 +172,24 @@ impl Detector {
                 format!("must be in [0, 1) and leave the scan a share (break_head_fraction + break_tail_fraction < 1), got {head_fraction}"),
             ));
         }
-        let scan_alpha = break_alpha * (1.0 - tail_fraction - head_fraction);
-        if !(break_alpha <= 0.5 && scan_alpha >= 0.001) {
+        let episode_fraction = config.breaks.episode_fraction;
+        if !(0.0..1.0).contains(&episode_fraction) || episode_fraction + head_fraction + tail_fraction >= 1.0 {
+            return Err(TightscanError::parameter(
+                "break_episode_fraction",
+                format!(
+                    "must be in [0, 1) and leave the scan a share (break_episode_fraction + break_head_fraction + break_tail_fraction < 1), got {episode_fraction}"
+                ),
+            ));
+        }
+        let scan_alpha = break_alpha * (1.0 - tail_fraction - head_fraction - episode_fraction);
+        let episode_alpha = break_alpha * episode_fraction;
+        if !(break_alpha <= 0.5 && scan_alpha >= 0.001 && (episode_fraction == 0.0 || episode_alpha >= 0.001)) {
             return Err(TightscanError::parameter(
                 "break_alpha",
                 format!(
-                    "must be at most 0.5, and its scan share (1 - break_tail_fraction - break_head_fraction) at least 0.001 (the shipped table); \
-                     got {break_alpha}, scan share {scan_alpha}; raise alpha or give break_alpha"
+                    "must be at most 0.5, and its scan share (1 - break_tail_fraction - break_head_fraction - break_episode_fraction) and its \
+                     episode share (break_episode_fraction) at least 0.001 (the shipped tables); \
+                     got {break_alpha}, scan share {scan_alpha}, episode share {episode_alpha}; raise alpha or give break_alpha"
                 ),
             ));
         }

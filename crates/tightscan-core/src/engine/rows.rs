@@ -99,6 +99,7 @@ pub(super) struct BreakRow {
     pub(super) p_value: f64,
     pub(super) tail_p_value: Option<f64>,
     pub(super) head_p_value: Option<f64>,
+    pub(super) episode_p_value: Option<f64>,
     pub(super) change_index: usize,
     pub(super) change_angle: f64,
     pub(super) jump: f64,

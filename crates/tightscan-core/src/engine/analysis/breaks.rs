@@ -3,6 +3,7 @@
 //! quantisation from passing for a friction change.
 
 use crate::detectors::{least_squares_3, least_squares_line as line};
+use crate::detectors::episode::{episode_critical_value, episode_predictive_p_value, episode_scan};
 use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_predictive_p_value, sup_lr_scan_profile, tail_test};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
@@ -27,7 +28,7 @@ impl Detector {
         let (wx, wy) = (&s.wx[lag..], &s.wy[lag..]);
         let nw = n - lag;
         let breaks = &self.config.breaks;
-        let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction - breaks.head_fraction);
+        let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction - breaks.head_fraction - breaks.episode_fraction);
         // A window too short for the scan gets no break row, the end and start tests included.
         // Running them alone there found 5 of 600 late HDT rises on the independent generator
         // whose windows the jump had cut short, but on the real control group s01 (no friction
@@ -61,6 +62,30 @@ impl Detector {
         let significant = if se > 0.0 { p_value <= scan_alpha } else { scan.statistic > critical_value };
         let scan_alarm = significant
             && (beyond_step(scan_jump) || beyond_encoder_artefact(scan.statistic, critical_value, || slope_change_lr(&wx[..nw], &wy[..nw], scan.split)));
+
+        // Episode scan: a stretch of the window off the line that the line before and after it
+        // shares, as an intermittent friction fault leaves (`detectors::episode`). Not where the
+        // tool restarts: after a pause, or from a window that starts after a controller step.
+        s.transients.clear();
+        if !s.starts_at_level {
+            s.transients.push(0);
+        }
+        s.transients.extend((lag..n.saturating_sub(1)).filter(|&k| s.index[k + 1] > s.index[k] + 1).map(|k| k + 1 - lag));
+        let episode_alpha = self.break_alpha * breaks.episode_fraction;
+        let episode = if breaks.episode_fraction > 0.0 { episode_scan(&wx[..nw], &wy[..nw], &s.transients, &mut s.episode_prefix) } else { None };
+        let episode = episode.and_then(|scan| {
+            let critical = episode_critical_value(nw, episode_alpha).ok()?;
+            let p_value = episode_predictive_p_value(nw, scan.statistic, se);
+            let significant = if se > 0.0 { p_value <= episode_alpha } else { scan.statistic > critical };
+            // Its level in torque units, recorded samples against the line through those
+            // outside it; the encoder-step check as for a break (no slope to tell an encoder
+            // offset by: only the multiple of the critical value).
+            let (first, end) = (scan.start + lag, scan.end + lag);
+            let level = deviation_from_outside(&xs[..n], &y[..n], first, end);
+            let alarm = significant && (beyond_step(level) || scan.statistic > ARTEFACT_MULTIPLE * critical);
+            Some(Episode { statistic: scan.statistic, p_value, first, level, alarm })
+        });
+        let episode_alarm = episode.is_some_and(|e| e.alarm);
 
         // End test: every tail the scan cannot isolate (shorter than its minimum segment), up to
         // the peak (the samples past the window, which only this test uses). Its p-value is
@@ -130,6 +155,10 @@ impl Detector {
                     let k = first_after - lag;
                     rss_break = rss_break.min(line_rss(&wx[..k], &wy[..k]) + line_rss(&wx[k..nw], &wy[k..nw]));
                 }
+                if let Some(e) = episode.filter(|e| e.alarm) {
+                    // The line with the episode's level shift, as another break.
+                    rss_break = rss_break.min(line_rss(&wx[..nw], &wy[..nw]) * (-e.statistic / nw as f64).exp());
+                }
                 (Some(p), rss_quad <= rss_break && rss_quad <= rss_drift)
             }
             None => (None, false),
@@ -154,15 +183,17 @@ impl Detector {
             _ if scan_alarm => (s.index[split], scan_jump),
             (Some((_, at, dev)), _) if tail_alarm => (at, dev),
             (_, Some((_, first_after, dev))) if head_alarm => (s.index[first_after], -dev),
+            _ if episode_alarm => episode.map_or((s.index[split], scan_jump), |e| (s.index[e.first], e.level)),
             _ => (s.index[split], scan_jump),
         };
         Some(BreakRow {
-            alarm: scan_alarm || tail_alarm || head_alarm,
+            alarm: scan_alarm || tail_alarm || head_alarm || episode_alarm,
             statistic: scan.statistic,
             critical_value,
             p_value,
             tail_p_value: tail.map(|(t, ..)| t.p_value),
             head_p_value: head.map(|(t, ..)| t.p_value),
+            episode_p_value: episode.map(|e| e.p_value),
             change_index,
             change_angle: angle[change_index].to_f64(),
             jump,
@@ -232,6 +263,32 @@ fn slope_change_lr(x: &[f64], y: &[f64], k: usize) -> f64 {
         Some((_, _, rss_shift)) if rss_two > 0.0 => n as f64 * (rss_shift / rss_two).ln(),
         _ => 0.0,
     }
+}
+
+/// What the episode scan found, in window samples.
+#[derive(Clone, Copy)]
+struct Episode {
+    statistic: f64,
+    /// Its p-value, averaged over the whitening's uncertainty.
+    p_value: f64,
+    /// First sample of the episode in the window (stops left out).
+    first: usize,
+    /// Mean deviation of its recorded samples from the line through those outside it.
+    level: f64,
+    alarm: bool,
+}
+
+/// Mean deviation of the samples `[first, end)` from the least-squares line through the others,
+/// in torque units: an episode's level.
+fn deviation_from_outside(x: &[f64], y: &[f64], first: usize, end: usize) -> f64 {
+    fn outside(v: &[f64], first: usize, end: usize) -> impl Iterator<Item = f64> + '_ {
+        v[..first].iter().chain(&v[end..]).copied()
+    }
+    let m = (x.len() - (end - first)) as f64;
+    let (mx, my) = (outside(x, first, end).sum::<f64>() / m, outside(y, first, end).sum::<f64>() / m);
+    let (sxx, sxy) = outside(x, first, end).zip(outside(y, first, end)).fold((0.0, 0.0), |(a, b), (xi, yi)| (a + (xi - mx) * (xi - mx), b + (xi - mx) * (yi - my)));
+    let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    x[first..end].iter().zip(&y[first..end]).map(|(xi, yi)| yi - my - slope * (xi - mx)).sum::<f64>() / (end - first) as f64
 }
 
 /// Mean deviation of the samples `tested` from the least-squares line through `fitted`, in

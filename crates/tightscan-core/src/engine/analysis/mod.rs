@@ -39,6 +39,10 @@ pub(super) struct Scratch {
     y: Vec<f64>,
     index: Vec<usize>,
     prefix: Vec<(f64, f64, f64, f64, f64)>,
+    /// Prefix sums of the episode scan, and where the tool restarts in the window (the first
+    /// sample after a pause; the window's first when it starts after a controller step).
+    episode_prefix: Vec<(f64, f64)>,
+    transients: Vec<usize>,
     line_residuals: Vec<f64>,
     bits: Vec<u64>,
     block_first: Vec<usize>,

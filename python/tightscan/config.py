@@ -109,8 +109,9 @@ class BreakConfig:
     in the window makes the torque jump by the clamp force times the change. 0 turns it off.
     An intermittent friction fault leaves a stretch of the window off the line, which returns to
     it after: a pulse, not a break. The episode scan looks for one such stretch (at least three
-    samples, inside the window, not at a pause), with ``episode_fraction`` of ``alpha``. 0 turns
-    it off."""
+    samples, inside the window, not at a pause), with ``episode_fraction`` of ``alpha``, where
+    the window's noise has a lag-1 autocorrelation under 0.7 (else the scan keeps that share).
+    0 turns it off."""
 
     alpha: float | None = _DEFAULTS["break_alpha"]
     min_jump_steps: float = _DEFAULTS["break_min_jump_steps"]

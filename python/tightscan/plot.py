@@ -385,7 +385,9 @@ def plot_detectors(curves: Any, results: Any, tightening_id: Any, *, config: Con
         ax_break.set_xlabel("angle [deg]")
         ax_break.set_ylabel("likelihood ratio")
         verdict = "alarm" if b.scan_alarm else "significant, within an encoder step" if b.significant else "no alarm"
-        ends = [name for name, fired in (("end", b.tail_alarm), ("start", b.head_alarm)) if fired]
+        ends = [name for name, fired in (("end", b.tail_alarm), ("start", b.head_alarm), ("episode", b.episode_alarm)) if fired]
+        if b.episode_alarm and b.episode is not None:
+            ax_break.axvspan(*b.episode, color=DETECTOR_COLOURS["break"], alpha=0.15, label=f"episode {b.episode[0]:.1f}-{b.episode[1]:.1f} deg", gid="break:episode")
         ax_break.set_title(verdict + "".join(f"; {name} test: alarm" for name in ends), loc="right", fontsize=8)
         _legend(ax_break, fontsize=7)
     else:

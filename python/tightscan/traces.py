@@ -76,7 +76,8 @@ class BreakTrace:
     ``decision_value`` the level the profile must pass, higher where the noise model's
     uncertainty widens the test. ``significant``: the maximum passed it; ``scan_alarm``: and its
     jump exceeded an encoder step; ``tail_alarm``, ``head_alarm``: the end-of-window or
-    start-of-window test fired."""
+    start-of-window test fired; ``episode``: the episode scan's best stretch (first and last
+    angle; ``None`` where no stretch was admissible), ``episode_alarm``: that scan fired."""
 
     angle: F64
     lr: F64
@@ -86,6 +87,8 @@ class BreakTrace:
     scan_alarm: bool
     tail_alarm: bool
     head_alarm: bool
+    episode: tuple[float, float] | None = None
+    episode_alarm: bool = False
 
 
 @dataclass(frozen=True)
@@ -192,7 +195,8 @@ def detector_traces(curves: Any, tightening_id: Any, config: ConfigLike = None) 
         breaks=None
         if b is None
         else BreakTrace(
-            _array(b["angle"]), _array(b["lr"]), b["critical_value"], b["decision_value"], b["significant"], b["scan_alarm"], b["tail_alarm"], b["head_alarm"]
+            _array(b["angle"]), _array(b["lr"]), b["critical_value"], b["decision_value"], b["significant"], b["scan_alarm"], b["tail_alarm"], b["head_alarm"],
+            None if b["episode"] is None else (float(b["episode"][0]), float(b["episode"][1])), b["episode_alarm"],
         ),
         kde=None
         if k is None

@@ -94,6 +94,8 @@ fn detector_traces<'py>(
         c.set_item("scan_alarm", t.scan_alarm)?;
         c.set_item("tail_alarm", t.tail_alarm)?;
         c.set_item("head_alarm", t.head_alarm)?;
+        c.set_item("episode", t.episode)?;
+        c.set_item("episode_alarm", t.episode_alarm)?;
         Ok(c)
     });
     d.set_item("breaks", breaks.transpose()?)?;

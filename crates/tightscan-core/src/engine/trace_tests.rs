@@ -90,7 +90,7 @@ fn traces_give_the_batch_row_and_cross_where_the_detectors_fired() {
         if let Some(b) = &traces.breaks {
             let top = b.lr.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             assert!((top - float(&row, "break_statistic").unwrap_or(f64::NAN)).abs() <= 1e-12 * top.abs(), "row {i}");
-            assert_eq!(b.scan_alarm || b.tail_alarm, flag(&row, "break_alarm").unwrap_or(false), "row {i}: break");
+            assert_eq!(b.scan_alarm || b.tail_alarm || b.head_alarm || b.episode_alarm, flag(&row, "break_alarm").unwrap_or(false), "row {i}: break");
             if b.scan_alarm {
                 let argmax = b.lr.iter().enumerate().fold(0, |best, (k, &v)| if v > b.lr[best] { k } else { best });
                 assert_eq!(Some(b.angle[argmax]), float(&row, "break_change_angle"), "row {i}");

@@ -68,6 +68,10 @@ pub struct BreakTrace {
     pub tail_alarm: bool,
     /// Whether the start-of-window test raised the alarm.
     pub head_alarm: bool,
+    /// The episode scan's best stretch (first and last angle), where one was admissible.
+    pub episode: Option<(f64, f64)>,
+    /// Whether the episode scan raised the alarm.
+    pub episode_alarm: bool,
 }
 
 /// Gaussian kernel densities of the elastic line's whitened residuals: the reference (the

@@ -48,6 +48,9 @@ pub struct Detector {
     config: DetectConfig,
     threshold: f64,
     break_alpha: f64,
+    /// Share of `break_alpha` the episode scan gets: the configured one, or 0 where it or the
+    /// scan's share would fall below the shipped tables' smallest alpha.
+    episode_fraction: f64,
     l1_alpha: f64,
     l1_critical_value: f64,
     kde_alpha: f64,
@@ -181,15 +184,22 @@ impl Detector {
                 ),
             ));
         }
+        // The episode scan runs where its share and the scan's both stay within the shipped
+        // tables (alpha 0.001 and up: a rule alpha of about 0.0045 and up with the default
+        // split); below that the scan keeps the whole share, as before the episode scan was
+        // added, so a small alpha that worked still works.
+        let episode_fraction = if break_alpha * episode_fraction >= 0.001 && break_alpha * (1.0 - tail_fraction - head_fraction - episode_fraction) >= 0.001 {
+            episode_fraction
+        } else {
+            0.0
+        };
         let scan_alpha = break_alpha * (1.0 - tail_fraction - head_fraction - episode_fraction);
-        let episode_alpha = break_alpha * episode_fraction;
-        if !(break_alpha <= 0.5 && scan_alpha >= 0.001 && (episode_fraction == 0.0 || episode_alpha >= 0.001)) {
+        if !(break_alpha <= 0.5 && scan_alpha >= 0.001) {
             return Err(TightscanError::parameter(
                 "break_alpha",
                 format!(
-                    "must be at most 0.5, and its scan share (1 - break_tail_fraction - break_head_fraction - break_episode_fraction) and its \
-                     episode share (break_episode_fraction) at least 0.001 (the shipped tables); \
-                     got {break_alpha}, scan share {scan_alpha}, episode share {episode_alpha}; raise alpha or give break_alpha"
+                    "must be at most 0.5, and its scan share (1 - break_tail_fraction - break_head_fraction) at least 0.001 (the shipped table); \
+                     got {break_alpha}, scan share {scan_alpha}; raise alpha or give break_alpha"
                 ),
             ));
         }
@@ -213,7 +223,7 @@ impl Detector {
                 cusum_threshold(monitored / d.share(DetectorKind::Cusum), c.kappa, true)?
             }
         };
-        Ok(Self { config, threshold, break_alpha, l1_alpha, l1_critical_value, kde_alpha, pf_alpha })
+        Ok(Self { config, threshold, break_alpha, episode_fraction, l1_alpha, l1_critical_value, kde_alpha, pf_alpha })
     }
 
     /// The configuration in use.
@@ -229,6 +239,12 @@ impl Detector {
     /// False-alarm probability per tightening of the break detector (scan and end test).
     pub fn break_alpha(&self) -> f64 {
         self.break_alpha
+    }
+
+    /// Share of the break detector's alpha the episode scan gets (0 where the configured share
+    /// would take it or the scan below the shipped tables).
+    pub fn episode_fraction(&self) -> f64 {
+        self.episode_fraction
     }
 
     /// False-alarm probability of the L1 monitoring, and its boundary's critical value c.

@@ -214,3 +214,23 @@ fn invalid_parameters_are_named() {
     c.cusum.threshold = Some(0.0);
     assert!(Detector::new(c).err().map(|e| e.to_string()).unwrap_or_default().contains("'threshold'"));
 }
+
+/// The episode scan takes its share of the break detector's alpha only where its share and the
+/// scan's stay within the shipped tables: a rule alpha of 0.002 or 0.003, which ran before the
+/// episode scan was added, still runs, with the scan's whole share as before.
+#[test]
+fn a_small_alpha_leaves_the_episode_scan_off_instead_of_failing() {
+    let with_alpha = |alpha: f64| {
+        let mut config = DetectConfig::default();
+        config.decision.alpha = alpha;
+        Detector::new(config)
+    };
+    let default = with_alpha(0.01).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(default.episode_fraction(), 0.3);
+    for alpha in [0.002, 0.003] {
+        let det = with_alpha(alpha).unwrap_or_else(|e| panic!("alpha {alpha}: {e}"));
+        assert_eq!(det.episode_fraction(), 0.0, "alpha {alpha}");
+    }
+    // Too small for the scan itself: a clear error, as before.
+    assert!(with_alpha(0.001).is_err());
+}

@@ -30,7 +30,7 @@ impl Detector {
         let breaks = &self.config.breaks;
         // The episode scan's share goes back to the scan where the noise is strongly coloured
         // ([`EPISODE_MAX_LAG1`]).
-        let episode_fraction = if s.noise.lag1_autocorrelation() >= EPISODE_MAX_LAG1 { 0.0 } else { breaks.episode_fraction };
+        let episode_fraction = if s.noise.lag1_autocorrelation() >= EPISODE_MAX_LAG1 { 0.0 } else { self.episode_fraction };
         let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction - breaks.head_fraction - episode_fraction);
         // A window too short for the scan gets no break row, the end and start tests included.
         // Running them alone there found 5 of 600 late HDT rises on the independent generator

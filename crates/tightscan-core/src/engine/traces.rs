@@ -50,7 +50,8 @@ pub struct L1Trace {
 /// every admissible split k of the whitened window.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct BreakTrace {
-    /// Angle of each split's first right-hand sample.
+    /// Angle of each split: halfway between its first right-hand sample and the sample before
+    /// it, on the interpolated angle (the change start it would report).
     pub angle: Vec<f64>,
     /// `LR_k`.
     pub lr: Vec<f64>,

@@ -24,8 +24,9 @@
 //! is the window's own), so it runs on the same whitened, Gaussianised samples.
 //!
 //! Admissible episodes: at least [`MIN_EPISODE`] samples, at least [`min_segment`]`(n)`
-//! samples outside, and half that before and after. Their ends lie on a grid of at most [`EPISODE_GRID`] + 1 positions
-//! (every sample up to that many; an even grid beyond), which bounds the cost at about
+//! samples outside, and half that before and after. Their ends lie on a grid of at most
+//! [`EPISODE_GRID`] + 1 positions (every sample up to that many; an even grid beyond), which
+//! bounds the cost at about
 //! `EPISODE_GRID^2 / 2` episodes for any window and defines the statistic the table is for.
 
 use crate::detectors::breakpoint::{min_segment, predictive_p_value, simulate_null_quantiles, table_critical_value, TABLE_ALPHA};
@@ -95,13 +96,14 @@ pub fn episode_scan(x: &[f64], y: &[f64], transients: &[usize], scratch: &mut Ve
     // the braking in the last five samples and the seating's bend in the first three were
     // significant episodes in 1 % of clean curves).
     let margin = outside / 2;
-    let positions = grid(n);
+    let (count, position) = grid(n);
     let mut best: Option<(f64, usize, usize, f64)> = None; // (reduction, k1, k2, level)
-    for (i, &k1) in positions.iter().enumerate() {
+    for i in 0..count {
+        let k1 = position(i);
         if k1 < margin {
             continue;
         }
-        for &k2 in &positions[i + 1..] {
+        for k2 in (i + 1..count).map(&position) {
             if k2 + margin > n {
                 break;
             }
@@ -132,15 +134,13 @@ pub fn episode_scan(x: &[f64], y: &[f64], transients: &[usize], scratch: &mut Ve
     Some(EpisodeScan { statistic: nf * (rss0 / rss).ln(), start, end, level })
 }
 
-/// The episode end positions for n samples: every position 0..=n up to [`EPISODE_GRID`]
-/// samples, else `EPISODE_GRID + 1` positions spread evenly (rounded).
-fn grid(n: usize) -> Vec<usize> {
-    if n <= EPISODE_GRID {
-        return (0..=n).collect();
-    }
-    let mut g: Vec<usize> = (0..=EPISODE_GRID).map(|j| ((j * n) as f64 / EPISODE_GRID as f64).round() as usize).collect();
-    g.dedup();
-    g
+/// The episode end positions for n samples, as their count and the i-th: every position 0..=n
+/// up to [`EPISODE_GRID`] samples, else `EPISODE_GRID + 1` positions spread evenly (rounded;
+/// more than a sample apart, so none repeats).
+fn grid(n: usize) -> (usize, impl Fn(usize) -> usize) {
+    let dense = n <= EPISODE_GRID;
+    let count = if dense { n + 1 } else { EPISODE_GRID + 1 };
+    (count, move |i: usize| if dense { i } else { ((i * n) as f64 / EPISODE_GRID as f64).round() as usize })
 }
 
 /// (1 - alpha) quantiles of the episode scan's statistic under no change, i.i.d. Gaussian

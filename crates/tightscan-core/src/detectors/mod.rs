@@ -17,11 +17,19 @@ pub mod shewhart;
 /// Intercept and slope of the least-squares line through `x`, `y` (slope 0 when `x` is flat):
 /// the local lines of the noise model and the engine's lines through a window alike.
 pub fn least_squares_line(x: &[f64], y: &[f64]) -> (f64, f64) {
-    let n = x.len().min(y.len()) as f64;
-    let mx = x.iter().sum::<f64>() / n;
-    let my = y.iter().sum::<f64>() / n;
+    least_squares_line_through(x.iter().copied().zip(y.iter().copied()))
+}
+
+/// [`least_squares_line`] through the points of an iterator (points that are not one slice:
+/// the samples either side of an episode).
+pub fn least_squares_line_through<I>(points: I) -> (f64, f64)
+where
+    I: Iterator<Item = (f64, f64)> + Clone,
+{
+    let (n, sx, sy) = points.clone().fold((0.0, 0.0, 0.0), |(n, sx, sy), (x, y)| (n + 1.0, sx + x, sy + y));
+    let (mx, my) = (sx / n, sy / n);
     let (mut sxx, mut sxy) = (0.0, 0.0);
-    for (xi, yi) in x.iter().zip(y) {
+    for (xi, yi) in points {
         sxx += (xi - mx) * (xi - mx);
         sxy += (xi - mx) * (yi - my);
     }

@@ -2,7 +2,7 @@
 //! test of the last samples up to the peak, with the encoder-step check that keeps angle
 //! quantisation from passing for a friction change.
 
-use crate::detectors::{least_squares_3, least_squares_line as line};
+use crate::detectors::{least_squares_3, least_squares_line as line, least_squares_line_through};
 use crate::detectors::episode::{episode_critical_value, episode_predictive_p_value, episode_scan};
 use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_predictive_p_value, sup_lr_scan_profile, tail_test};
 use crate::engine::input::Sample;
@@ -69,13 +69,17 @@ impl Detector {
         // Episode scan: a stretch of the window off the line that the line before and after it
         // shares, as an intermittent friction fault leaves (`detectors::episode`). Not where the
         // tool restarts: after a pause, or from a window that starts after a controller step.
-        s.transients.clear();
-        if !s.starts_at_level {
-            s.transients.push(0);
-        }
-        s.transients.extend((lag..n.saturating_sub(1)).filter(|&k| s.index[k + 1] > s.index[k] + 1).map(|k| k + 1 - lag));
         let episode_alpha = self.break_alpha * episode_fraction;
-        let episode = if episode_fraction > 0.0 { episode_scan(&wx[..nw], &wy[..nw], &s.transients, &mut s.episode_prefix) } else { None };
+        let episode = if episode_fraction > 0.0 {
+            s.transients.clear();
+            if !s.starts_at_level {
+                s.transients.push(0);
+            }
+            s.transients.extend((lag..n.saturating_sub(1)).filter(|&k| s.index[k + 1] > s.index[k] + 1).map(|k| k + 1 - lag));
+            episode_scan(&wx[..nw], &wy[..nw], &s.transients, &mut s.episode_prefix)
+        } else {
+            None
+        };
         let episode = episode.and_then(|scan| {
             let critical = episode_critical_value(nw, episode_alpha).ok()?;
             let p_value = episode_predictive_p_value(nw, scan.statistic, se);
@@ -318,14 +322,9 @@ struct Episode {
 /// Mean deviation of the samples `[first, end)` from the least-squares line through the others,
 /// in torque units: an episode's level.
 fn deviation_from_outside(x: &[f64], y: &[f64], first: usize, end: usize) -> f64 {
-    fn outside(v: &[f64], first: usize, end: usize) -> impl Iterator<Item = f64> + '_ {
-        v[..first].iter().chain(&v[end..]).copied()
-    }
-    let m = (x.len() - (end - first)) as f64;
-    let (mx, my) = (outside(x, first, end).sum::<f64>() / m, outside(y, first, end).sum::<f64>() / m);
-    let (sxx, sxy) = outside(x, first, end).zip(outside(y, first, end)).fold((0.0, 0.0), |(a, b), (xi, yi)| (a + (xi - mx) * (xi - mx), b + (xi - mx) * (yi - my)));
-    let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    x[first..end].iter().zip(&y[first..end]).map(|(xi, yi)| yi - my - slope * (xi - mx)).sum::<f64>() / (end - first) as f64
+    let points = |range: std::ops::Range<usize>| x[range.clone()].iter().copied().zip(y[range].iter().copied());
+    let (a, b) = least_squares_line_through(points(0..first).chain(points(end..x.len())));
+    points(first..end).map(|(xi, yi)| yi - a - b * xi).sum::<f64>() / (end - first) as f64
 }
 
 /// Mean deviation of the samples `tested` from the least-squares line through `fitted`, in

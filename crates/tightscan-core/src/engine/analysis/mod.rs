@@ -625,7 +625,11 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut
             let mut local = (usize::MAX, None);
             // The run's gaps, as (the last sample before, the first after): a slow encoder's
             // run goes on across them.
-            let gaps: Vec<(f64, f64)> = times[range.clone()].windows(2).filter(|w| w[1] != w[0] + 1.0).map(|w| (w[0], w[1])).collect();
+            let gaps: Vec<(f64, f64)> = if carrier == 0.0 {
+                times[range.clone()].windows(2).filter(|w| w[1] != w[0] + 1.0).map(|w| (w[0], w[1])).collect()
+            } else {
+                Vec::new()
+            };
             for p in range.clone().filter(|&p| p >= before) {
                 let (t, recorded) = (times[p], angles[p]);
                 // A run whose count moves at every other sample or faster (a tool winding up
@@ -661,7 +665,7 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut
                 // up to a step behind the run after it (built-in simulator, CSDT 10 kHz, 0.5 deg
                 // encoder, white noise: 15 % false alarms of clean curves, 0.5 % side by side;
                 // independent generator 6.3 -> 0.3 %).
-                let gap = if carrier == 0.0 { gaps.iter().find(|&&(lo, hi)| lo >= t0 && hi <= t1 + 1.0) } else { None };
+                let gap = gaps.iter().find(|&&(lo, hi)| lo >= t0 && hi <= t1 + 1.0);
                 let beat = match (local, gap) {
                     (_, Some(&(lo, hi))) => {
                         if t <= lo {

@@ -90,7 +90,7 @@ impl Detector {
             let (first, end) = (scan.start + lag, scan.end + lag);
             let level = deviation_from_outside(&xs[..n], &y[..n], first, end);
             let alarm = significant && (beyond_step(level) || scan.statistic > ARTEFACT_MULTIPLE * critical);
-            Some(Episode { statistic: scan.statistic, p_value, first, last: end - 1, level, alarm })
+            Some(Episode { statistic: scan.statistic, p_value, first, last: end - 1, onset: scan.onset + lag, level, alarm })
         });
         let episode_alarm = episode.is_some_and(|e| e.alarm);
 
@@ -195,7 +195,7 @@ impl Detector {
             _ if scan_alarm => (split, scan_jump),
             (Some((_, at, dev)), _) if tail_alarm => (at, dev),
             (_, Some((_, first_after, dev))) if head_alarm => (first_after, -dev),
-            _ if episode_alarm => episode.map_or((split, scan_jump), |e| (e.first, e.level)),
+            _ if episode_alarm => episode.map_or((split, scan_jump), |e| (e.onset, e.level)),
             _ => (split, scan_jump),
         };
         let change_index = s.index[first_changed];
@@ -311,9 +311,11 @@ struct Episode {
     statistic: f64,
     /// Its p-value, averaged over the whitening's uncertainty.
     p_value: f64,
-    /// First and last sample of the episode in the window (stops left out).
+    /// First and last sample of the strongest stretch in the window (stops left out).
     first: usize,
     last: usize,
+    /// First sample of the earliest stretch the statistic took: where the episodes begin.
+    onset: usize,
     /// Mean deviation of its recorded samples from the line through those outside it.
     level: f64,
     alarm: bool,

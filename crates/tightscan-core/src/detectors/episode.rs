@@ -190,7 +190,10 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
             hb += beta * qe;
         }
         let project = |s1: f64, sxe: f64, se: f64| (s1 - (h00 * s1 * s1 + 2.0 * h01 * s1 * sxe + h11 * sxe * sxe), se - ha * s1 - hb * sxe);
-        let mut best: Option<(f64, usize, usize)> = None; // (reduction, grid index of k1, of k2)
+        // The best stretch as (its reduction's numerator and denominator, grid index of k1, of
+        // k2): compared by cross-multiplying (both denominators positive), no division per
+        // stretch.
+        let mut best: Option<(f64, f64, usize, usize)> = None;
         for (i, &k1) in positions.iter().enumerate() {
             if k1 < margin {
                 continue;
@@ -204,33 +207,36 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
             for t in taken[..pass].iter().filter(|t| t.k1 > k1) {
                 last = last.min(t.k1);
             }
+            // Grid indices of the admissible ends: from the first at least MIN_EPISODE on to the
+            // last within `last` (positions increase).
+            let from = i + 1 + positions[i + 1..].partition_point(|&k2| k2 < k1 + MIN_EPISODE);
+            let to = i + 1 + positions[i + 1..].partition_point(|&k2| k2 <= last);
             let (cx, ce) = sums[i];
-            for (j, &k2) in positions.iter().enumerate().skip(i + 1) {
-                if k2 > last {
-                    break;
+            let mut scan = |admit: &dyn Fn(usize) -> bool| {
+                for j in from..to {
+                    let k2 = positions[j];
+                    if !admit(k2) {
+                        continue;
+                    }
+                    let s1 = (k2 - k1) as f64;
+                    let (norm, along) = project(s1, sums[j].0 - cx, sums[j].1 - ce);
+                    let numerator = along * along;
+                    if norm > 1e-9 * s1 && best.is_none_or(|(bn, bd, ..)| numerator * bd > bn * norm) {
+                        best = Some((numerator, norm, i, j));
+                    }
                 }
-                let m = k2 - k1;
-                if m < MIN_EPISODE {
-                    continue;
-                }
-                if !transients.is_empty() && transients.iter().any(|&g| g + m >= k1 && g <= k2 + m) {
-                    continue;
-                }
-                let s1 = m as f64;
-                let (norm, along) = project(s1, sums[j].0 - cx, sums[j].1 - ce);
-                if !(norm > 1e-9 * s1) {
-                    continue;
-                }
-                let reduction = along * along / norm;
-                if best.is_none_or(|(r, ..)| reduction > r) {
-                    best = Some((reduction, i, j));
-                }
+            };
+            if transients.is_empty() {
+                scan(&|_| true);
+            } else {
+                scan(&|k2| !transients.iter().any(|&g| g + (k2 - k1) >= k1 && g <= k2 + (k2 - k1)));
             }
         }
-        let Some((reduction, i, j)) = best else { break };
+        let Some((_, _, i, j)) = best else { break };
         let (k1, k2) = (positions[i], positions[j]);
         let (s1, sxe) = ((k2 - k1) as f64, sums[j].0 - sums[i].0);
         let (norm, along) = project(s1, sxe, sums[j].1 - sums[i].1);
+        let reduction = along * along / norm;
         taken[pass] = Taken { k1, k2 };
         w[pass] = (g00 * s1 + g01 * sxe, g01 * s1 + g11 * sxe);
         // q_pass = (M z - sum_j <z, q_j> q_j) / sqrt(norm), in the taken stretches' terms.

@@ -51,9 +51,9 @@ pub const MAX_EPISODES: usize = 3;
 /// ratios of their null quantiles at 0.005 to the one-stretch statistic's (n = 250, 100,000
 /// series each, the ignored test `episode_scale_ratios`: 1.57 and 2.06; 1.58 and 2.07 at
 /// n = 1,000, 1.48 and 1.84 at n = 60). Any fixed divisors give a valid test, since the table
-/// is of the combined statistic; these balance the parts where the rule works. With
-/// them each part of the maximum sits at about the same tail under no change, so a single
-/// stretch keeps most of its power while two or three short ones add theirs.
+/// is of the combined statistic; these put each part of the maximum at about the same null
+/// tail near the rule's share of alpha, so a single stretch keeps most of its power while two
+/// or three short ones add theirs.
 pub const EPISODE_SCALE: [f64; MAX_EPISODES] = [1.0, EPISODE_SCALE_2, EPISODE_SCALE_3];
 const EPISODE_SCALE_2: f64 = 1.57;
 const EPISODE_SCALE_3: f64 = 2.06;
@@ -95,7 +95,8 @@ struct Taken {
 /// changes were two or three episodes of 3-6 samples each, at episode p-values of 0.002-0.05).
 /// Further stretches are sought only where the first one's statistic reaches the one-stretch
 /// statistic's null 0.9 quantile ([`FURTHER_STRETCHES_FROM`]): each search costs what the first
-/// does, and the three on every window took 33 % off the engine's throughput on 10 kHz curves.
+/// does, and three on every window took a third off the engine's throughput (built-in
+/// simulator's curves, half of them faulty).
 /// The gate is part of the statistic, so the table is of the gated statistic.
 ///
 /// `transients`: sample positions where the tool restarted (the first sample after a pause, or

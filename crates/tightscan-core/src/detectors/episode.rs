@@ -106,18 +106,17 @@ struct Taken {
 /// significant at their share held the pause).
 pub fn episode_scan(x: &[f64], y: &[f64], transients: &[usize], scratch: &mut Vec<(f64, f64)>) -> Option<EpisodeScan> {
     let further_from = table_critical_value(&ONE_STRETCH_LR_QUANTILES, x.len(), FURTHER_STRETCHES_FROM);
-    let (lrs, taken, levels, count) = greedy_episodes(x, y, transients, further_from, scratch)?;
+    let (lrs, taken, level, count) = greedy_episodes(x, y, transients, further_from, scratch)?;
     let (best, statistic) = (0..count).map(|k| (k, lrs[k] / EPISODE_SCALE[k])).fold((0, f64::NEG_INFINITY), |a, b| if b.1 > a.1 { b } else { a });
     let used = best + 1;
     let onset = taken[..used].iter().map(|t| t.k1).min().unwrap_or(taken[0].k1);
-    Some(EpisodeScan { statistic, start: taken[0].k1, end: taken[0].k2, level: levels[0], count: used, onset })
+    Some(EpisodeScan { statistic, start: taken[0].k1, end: taken[0].k2, level, count: used, onset })
 }
 
-type Greedy = ([f64; MAX_EPISODES], [Taken; MAX_EPISODES], [f64; MAX_EPISODES], usize);
+type Greedy = ([f64; MAX_EPISODES], [Taken; MAX_EPISODES], f64, usize);
 
 /// The greedy search of [`episode_scan`]: the sup-LR statistic with 1, 2, ... stretches, the
-/// stretches, their fitted levels (the first's alone; the later ones given those before), and
-/// how many were found. Stretches after the first only where the first's statistic exceeds
+/// stretches, the first one's fitted level (alone, against the line), and how many were found. Stretches after the first only where the first's statistic exceeds
 /// `further_from`.
 fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64, scratch: &mut Vec<(f64, f64)>) -> Option<Greedy> {
     let n = x.len();
@@ -176,7 +175,7 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
     let mut q_e = [0.0; MAX_EPISODES];
     let mut on_basis = [(0.0, 0.0); MAX_EPISODES]; // (alpha_j, beta_j)
     let mut lrs = [0.0; MAX_EPISODES];
-    let mut levels = [0.0; MAX_EPISODES];
+    let mut first_level = 0.0;
     let (mut rss, mut used_samples, mut found) = (rss0, 0, 0);
     for pass in 0..MAX_EPISODES {
         if pass == 1 && !(lrs[0] > further_from) {
@@ -255,11 +254,13 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
         on_basis[pass] = (0..=pass).fold((0.0, 0.0), |(al, be), ii| (al - basis[pass][ii] * w[ii].0, be - basis[pass][ii] * w[ii].1));
         rss = (rss - reduction).max(1e-300 * rss0);
         lrs[pass] = nf * (rss0 / rss).ln();
-        levels[pass] = along / norm;
+        if pass == 0 {
+            first_level = along / norm;
+        }
         used_samples += k2 - k1;
         found = pass + 1;
     }
-    (found > 0).then_some((lrs, taken, levels, found))
+    (found > 0).then_some((lrs, taken, first_level, found))
 }
 
 /// The episode end positions for n samples, as their count and the i-th: every position 0..=n

@@ -344,6 +344,89 @@ where
         .collect()
 }
 
+/// Lag-1 autocorrelations of the noise at which [`WHITENING_SENSITIVITY`] was measured.
+pub const SENSITIVITY_LAG1: [f64; 7] = [0.0, 0.3, 0.5, 0.7, 0.85, 0.9, 0.95];
+
+/// How the sup-LR statistic's null quantiles grow with a whitening error: kappa with
+/// `q(error) = q(0) exp(2 kappa error)`, for a log-gain error of +0.5 (under-whitening, which
+/// leaves the noise's low frequencies in the window; the predictive p-value treats the error
+/// as symmetric). Rows follow [`TABLE_N`], columns [`SENSITIVITY_LAG1`]; the 0.995 quantile.
+/// A long-run variance `lambda` times the white one would scale an F-type ratio by `lambda`
+/// (kappa 1) if the lines fitted to the segments kept the leftover's slow part; they absorb
+/// it, the more so the shorter the window and the slower the leftover (phi near 1), so kappa
+/// is 0.05-0.9. Made by `simulate_miswhitened_quantiles` with AR(1) noise, 50,000 windows per
+/// cell with common random numbers (the ignored test `whitening_sensitivity_experiment`).
+pub static WHITENING_SENSITIVITY: [[f64; 7]; 8] = [
+    [0.53, 0.57, 0.53, 0.42, 0.22, 0.13, 0.04], // n = 30
+    [0.56, 0.64, 0.64, 0.59, 0.41, 0.28, 0.11], // n = 60
+    [0.58, 0.68, 0.70, 0.69, 0.58, 0.47, 0.26], // n = 120
+    [0.59, 0.71, 0.76, 0.77, 0.70, 0.64, 0.47], // n = 250
+    [0.62, 0.75, 0.80, 0.83, 0.80, 0.76, 0.64], // n = 500
+    [0.63, 0.76, 0.82, 0.86, 0.86, 0.83, 0.76], // n = 1000
+    [0.64, 0.77, 0.84, 0.89, 0.90, 0.89, 0.85], // n = 2000
+    [0.64, 0.78, 0.84, 0.90, 0.92, 0.92, 0.90], // n = 4000
+];
+
+/// The statistic's sensitivity kappa to a whitening error ([`WHITENING_SENSITIVITY`]) for a
+/// window of n whitened samples whose noise model has lag-1 autocorrelation `lag1`:
+/// interpolated linearly in ln n and in `lag1` (clamped to the table).
+pub fn whitening_sensitivity(n: usize, lag1: f64) -> f64 {
+    let lag1 = if lag1.is_finite() { lag1.clamp(SENSITIVITY_LAG1[0], SENSITIVITY_LAG1[SENSITIVITY_LAG1.len() - 1]) } else { 0.0 };
+    let j = (1..SENSITIVITY_LAG1.len()).find(|&j| lag1 <= SENSITIVITY_LAG1[j]).unwrap_or(SENSITIVITY_LAG1.len() - 1);
+    let t = (lag1 - SENSITIVITY_LAG1[j - 1]) / (SENSITIVITY_LAG1[j] - SENSITIVITY_LAG1[j - 1]);
+    let n = (n as f64).clamp(TABLE_N[0] as f64, TABLE_N[TABLE_N.len() - 1] as f64);
+    let i = (1..TABLE_N.len()).find(|&i| n <= TABLE_N[i] as f64).unwrap_or(TABLE_N.len() - 1);
+    let (la, lb) = ((TABLE_N[i - 1] as f64).ln(), (TABLE_N[i] as f64).ln());
+    let u = (n.ln() - la) / (lb - la);
+    let at = |row: &[f64; 7]| row[j - 1] + t * (row[j] - row[j - 1]);
+    let (a, b) = (at(&WHITENING_SENSITIVITY[i - 1]), at(&WHITENING_SENSITIVITY[i]));
+    a + u * (b - a)
+}
+
+/// The (1 - alpha) quantiles ([`TABLE_ALPHA`]) of `statistic` on `reps` windows of n evenly
+/// spaced samples whose noise is AR(1) with coefficient `phi` (stationary start) and which were
+/// whitened with the coefficient whose log gain `ln(1 - phi_hat)` is off by `log_gain_error`
+/// (`1 - phi_hat = (1 - phi) e^error`): regressor and torque filtered alike, as the engine
+/// whitens a window. The growth of these quantiles against the error is the statistic's
+/// sensitivity to a whitening error ([`WHITENING_SENSITIVITY`]).
+pub fn simulate_miswhitened_quantiles<S>(n: usize, phi: f64, log_gain_error: f64, reps: usize, seed: u64, statistic: S) -> Vec<f64>
+where
+    S: Fn(&[f64], &[f64]) -> f64 + Sync,
+{
+    let phi_hat = 1.0 - (1.0 - phi) * log_gain_error.exp();
+    let x: Vec<f64> = (0..=n).map(|i| i as f64 / n as f64 - 0.5).collect();
+    let wx: Vec<f64> = x.windows(2).map(|w| w[1] - phi_hat * w[0]).collect();
+    let innovation_sd = (1.0 - phi * phi).max(0.0).sqrt();
+    let mut stats: Vec<f64> = (0..reps)
+        .into_par_iter()
+        .map_init(
+            || (Vec::with_capacity(n + 1), Vec::with_capacity(n)),
+            |(e, wy): &mut (Vec<f64>, Vec<f64>), r| {
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ (r as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+                let mut draw = || <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng);
+                e.clear();
+                let mut v = draw();
+                e.push(v);
+                for _ in 0..n {
+                    v = phi * v + innovation_sd * draw();
+                    e.push(v);
+                }
+                wy.clear();
+                wy.extend(e.windows(2).map(|w| w[1] - phi_hat * w[0]));
+                statistic(&wx, wy)
+            },
+        )
+        .collect();
+    stats.sort_by(f64::total_cmp);
+    TABLE_ALPHA
+        .iter()
+        .map(|a| {
+            let pos = ((1.0 - a) * reps as f64).ceil() as usize;
+            stats[pos.min(reps - 1)]
+        })
+        .collect()
+}
+
 /// Critical value at `alpha` for n samples: the table, interpolated linearly in ln n and, for
 /// alpha between table columns, linearly in ln alpha. n beyond the table uses its last row
 /// (the statistic grows like ln ln n, a few percent per doubling; see the size tests).
@@ -363,7 +446,9 @@ pub fn sup_lr_critical_value(n: usize, alpha: f64) -> Result<f64> {
 /// `ln lambda ~ N(0, (2 gain_log_se)^2)`, and the statistic scales with it (an F-type ratio of
 /// segment fits whose denominator is the short-run variance). Averaging the tail over that
 /// distribution (5-point Gauss-Hermite) is the predictive p-value; with `gain_log_se` 0 it is
-/// [`sup_lr_p_value`]. Near phi = 1 the plug-in test is oversized in proportion to the AR
+/// [`sup_lr_p_value`]. The segments' lines absorb part of the leftover's slow variation, so
+/// the statistic grows as `lambda^kappa` with kappa below 1 ([`whitening_sensitivity`]): the
+/// engine passes `kappa gain_log_se`. Near phi = 1 the plug-in test is oversized in proportion to the AR
 /// fit's error (phi 0.85 estimated 0.03 low leaves lambda = 1.4), and the error of a fit from
 /// a few hundred samples is that large.
 pub fn sup_lr_predictive_p_value(n: usize, statistic: f64, gain_log_se: f64) -> f64 {
@@ -645,6 +730,54 @@ mod tests {
     fn bad_alpha_is_named() {
         assert!(sup_lr_critical_value(100, 0.0001).err().map(|e| e.to_string()).unwrap_or_default().contains("'alpha'"));
         assert!((sup_lr_critical_value(1000, 0.01).unwrap() - 17.563).abs() < 1e-9);
+    }
+
+    #[test]
+    fn whitening_sensitivity_table_matches_simulation() {
+        // Fresh simulations (other seeds, fewer windows) of four cells of the table; the common
+        // random numbers of the two runs keep the ratio's Monte Carlo error near 0.03. A
+        // statistic that scaled with the whole long-run variance (kappa 1), or not at all
+        // (kappa 0), fails every cell.
+        for (n, j) in [(60, 4), (120, 2), (250, 5), (500, 6)] {
+            let phi = SENSITIVITY_LAG1[j];
+            let seg = min_segment(n);
+            let stat = |x: &[f64], y: &[f64]| sup_lr_scan(x, y, seg, &mut Vec::new()).map_or(0.0, |b| b.statistic);
+            let q0 = simulate_miswhitened_quantiles(n, phi, 0.0, 6000, 77 + n as u64, stat)[6];
+            let q = simulate_miswhitened_quantiles(n, phi, 0.5, 6000, 77 + n as u64, stat)[6];
+            let kappa = (q / q0).ln();
+            let table = WHITENING_SENSITIVITY[TABLE_N.iter().position(|&m| m == n).unwrap()][j];
+            assert!((kappa - table).abs() < 0.1, "n {n} phi {phi}: simulated {kappa:.3}, table {table}");
+            assert!((whitening_sensitivity(n, phi) - table).abs() < 1e-12);
+        }
+        // Interpolation: between the grid's points, and clamped beyond them.
+        let mid = whitening_sensitivity(120, 0.875);
+        assert!((mid - 0.5 * (WHITENING_SENSITIVITY[2][4] + WHITENING_SENSITIVITY[2][5])).abs() < 1e-9);
+        assert!((whitening_sensitivity(10, 0.99) - WHITENING_SENSITIVITY[0][6]).abs() < 1e-9);
+        assert!((whitening_sensitivity(100_000, -0.3) - WHITENING_SENSITIVITY[7][0]).abs() < 1e-9);
+        assert!((whitening_sensitivity(1000, f64::NAN) - WHITENING_SENSITIVITY[5][0]).abs() < 1e-9);
+    }
+
+    #[test]
+    #[ignore = "prints the sup-LR statistic's sensitivity to a whitening error (a few minutes)"]
+    fn whitening_sensitivity_experiment() {
+        let reps: usize = std::env::var("REPS").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000);
+        let deltas: Vec<f64> = std::env::var("DELTAS").ok().map(|v| v.split(',').filter_map(|d| d.parse().ok()).collect()).unwrap_or(vec![0.5]);
+        let col = 6; // alpha 0.005
+        for n in TABLE_N {
+            let seg = min_segment(n);
+            let stat = |x: &[f64], y: &[f64]| sup_lr_scan(x, y, seg, &mut Vec::new()).map_or(0.0, |b| b.statistic);
+            let mut line = format!("n {n:5}");
+            for phi in [0.0, 0.3, 0.5, 0.7, 0.85, 0.9, 0.95] {
+                let seed = 20_261_127 + n as u64;
+                let q0 = simulate_miswhitened_quantiles(n, phi, 0.0, reps, seed, stat)[col];
+                for &d in &deltas {
+                    let qd = simulate_miswhitened_quantiles(n, phi, d, reps, seed, stat)[col];
+                    line += &format!(" {:.2}", (qd / q0).ln() / (2.0 * d));
+                }
+                line += " |";
+            }
+            println!("{line}");
+        }
     }
 
     #[test]

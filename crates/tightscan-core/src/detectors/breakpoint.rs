@@ -322,7 +322,7 @@ where
     S: Fn(&[f64], &[f64]) -> f64 + Sync,
 {
     let x: Vec<f64> = (0..n).map(|i| i as f64 / n as f64 - 0.5).collect();
-    let mut stats: Vec<f64> = (0..reps)
+    let stats: Vec<f64> = (0..reps)
         .into_par_iter()
         .map_init(
             || Vec::with_capacity(n),
@@ -334,14 +334,7 @@ where
             },
         )
         .collect();
-    stats.sort_by(f64::total_cmp);
-    TABLE_ALPHA
-        .iter()
-        .map(|a| {
-            let pos = ((1.0 - a) * reps as f64).ceil() as usize;
-            stats[pos.min(reps - 1)]
-        })
-        .collect()
+    upper_quantiles(stats)
 }
 
 /// Lag-1 autocorrelations of the noise at which [`WHITENING_SENSITIVITY`] was measured.
@@ -397,7 +390,7 @@ where
     let x: Vec<f64> = (0..=n).map(|i| i as f64 / n as f64 - 0.5).collect();
     let wx: Vec<f64> = x.windows(2).map(|w| w[1] - phi_hat * w[0]).collect();
     let innovation_sd = (1.0 - phi * phi).max(0.0).sqrt();
-    let mut stats: Vec<f64> = (0..reps)
+    let stats: Vec<f64> = (0..reps)
         .into_par_iter()
         .map_init(
             || (Vec::with_capacity(n + 1), Vec::with_capacity(n)),
@@ -417,7 +410,16 @@ where
             },
         )
         .collect();
+    upper_quantiles(stats)
+}
+
+/// The (1 - alpha) quantile of `stats` for each alpha of [`TABLE_ALPHA`] (empty: none).
+fn upper_quantiles(mut stats: Vec<f64>) -> Vec<f64> {
     stats.sort_by(f64::total_cmp);
+    let reps = stats.len();
+    if reps == 0 {
+        return Vec::new();
+    }
     TABLE_ALPHA
         .iter()
         .map(|a| {

@@ -180,7 +180,7 @@ fn systematic_resample<R: Rng + RngExt + ?Sized>(w: &[f64], rng: &mut R, out: &m
 /// noise white). `alpha` sets [`PfResult::alarm_index`]. `None` when the series is too short
 /// (fewer than `training + 2` samples), not finite, or `x` has no span.
 pub fn pf_fault_test(x: &[f64], y: &[f64], alpha: f64, config: &PfConfig) -> Option<PfResult> {
-    pf_fault_test_whitened(&WhitenedLine { intercept: None, x, pivot_x: x, y }, alpha, config)
+    pf_fault_test_whitened(&WhitenedLine { intercept: None, x, pivot_x: x, y, restarts: &[] }, alpha, config)
 }
 
 /// A line's samples after weighting and whitening (the engine's window):
@@ -206,7 +206,19 @@ pub struct WhitenedLine<'a> {
     pub pivot_x: &'a [f64],
     /// Whitened torque.
     pub y: &'a [f64],
+    /// Where the tool restarts after a stop whose samples were left out (a CSDT pause), as the
+    /// whitened samples to skip: those whose whitening reaches back across the stop (the noise
+    /// ran on through the left-out samples, so they are no innovations; under AR(1) 0.9 the
+    /// first has 5 times the innovation variance). At each range's end the offset is let
+    /// free in both models (the torque relaxed at standstill: a level shift, not a friction
+    /// change). Empty: none.
+    pub restarts: &'a [std::ops::Range<usize>],
 }
+
+/// Variance let into the offset where the tool restarts ([`WhitenedLine::restarts`]), in the
+/// filter's torque units (the window's largest whitened torque is 1): diffuse against a
+/// relaxation of a few noise sds.
+const RESTART_LEVEL_VAR: f64 = 1.0;
 
 /// [`pf_fault_test`] of a weighted and whitened line ([`WhitenedLine`]).
 pub fn pf_fault_test_whitened(line: &WhitenedLine<'_>, alpha: f64, config: &PfConfig) -> Option<PfResult> {
@@ -288,10 +300,23 @@ pub fn pf_fault_test_whitened(line: &WhitenedLine<'_>, alpha: f64, config: &PfCo
     let mut rate_track = Vec::with_capacity(if config.keep_track { n - m } else { 0 });
     let rate_units = y_spread / x_span;
 
+    // Samples used so far (the Student t's degrees of freedom count them).
+    let mut used = m;
     for t in m..n {
-        let nu = (t - 2) as f64;
+        if line.restarts.iter().any(|r| r.contains(&t)) {
+            // Skipped: the track holds its value (one entry per sample from the training on).
+            if config.keep_track {
+                rate_track.push(rate_units * filters.iter().zip(&w).map(|(f, wi)| f.b * wi).sum::<f64>());
+            }
+            continue;
+        }
+        let nu = (used - 2) as f64;
+        used += 1;
         let t_const = ln_gamma(0.5 * (nu + 1.0)) - ln_gamma(0.5 * nu) - 0.5 * (nu * std::f64::consts::PI).ln();
-        null.pcc += drift_var;
+        // After a stop the offset is free (a diffuse step of the level, in both models: the
+        // torque's spread is 1 in these units).
+        let level_shift = if line.restarts.iter().any(|r| r.end == t) { RESTART_LEVEL_VAR } else { 0.0 };
+        null.pcc += drift_var + level_shift;
         null.pbb += drift_var;
         log_z0 += null.step(one[t], u[t], z[t], nu, t_const);
         for i in 0..np {
@@ -311,7 +336,7 @@ pub fn pf_fault_test_whitened(line: &WhitenedLine<'_>, alpha: f64, config: &PfCo
                     proposal = log_stay;
                 }
             }
-            f.pcc += drift_var;
+            f.pcc += drift_var + level_shift;
             f.pbb += drift_var;
             inc[i] = proposal + f.step(one[t], u[t], z[t], nu, t_const);
         }
@@ -626,6 +651,37 @@ pub fn pf_null_p_value(statistic: f64, n: usize) -> f64 {
     (l0 - (statistic - s0)).exp()
 }
 
+/// Offset of the fault statistic's response to colour the whitening leaves
+/// ([`pf_predictive_p_value`]): with the long-run variance of the whitened noise `lambda` times
+/// its marginal one, the null statistic behaves as `S_lambda + C = lambda (S_1 + C)` (a log
+/// Bayes factor is half a likelihood ratio, which scales with lambda, less the jump's Occam
+/// penalty and the prior's weight, which do not). Measured on null lines with AR(1) noise of
+/// psi 0.1 and 0.2 (lambda 1.22, 1.5) against white, 1,500 each, n 60 / 250 / 1,000
+/// (`cargo run --release -p tightscan-benches --example pf_colour_response`): the 5 % and 1 %
+/// points imply C 1.2-3.4, 2 in the middle (the 5 % point at n 250, lambda 1.5: 0.85 white,
+/// 2.26 coloured, 2.28 by the scaling with C 2).
+pub const PF_COLOUR_OFFSET: f64 = 2.0;
+
+/// [`pf_null_p_value`] averaged over the whitening's uncertainty, as the break scan's
+/// ([`crate::detectors::breakpoint::sup_lr_predictive_p_value`]): with the AR filter's log gain
+/// known to a standard error `gain_log_se`, the whitened noise's long-run variance is `lambda`
+/// times the one assumed, `ln lambda ~ N(0, (2 gain_log_se)^2)`, the statistic scales with it
+/// about [`PF_COLOUR_OFFSET`], and the table's p-value averaged over lambda (5-point
+/// Gauss-Hermite) is the predictive p-value; with `gain_log_se` 0 it is the table's. The
+/// statistic is sensitive to leftover colour (at n 250 a lambda of 1.5 moves its 5 % point
+/// from 0.85 to 2.26, the table's 0.5 % point), and an AR fit from a few hundred samples under
+/// phi 0.85-0.9 leaves lambdas that large.
+pub fn pf_predictive_p_value(statistic: f64, n: usize, gain_log_se: f64) -> f64 {
+    if !(gain_log_se > 0.0) || !statistic.is_finite() {
+        return pf_null_p_value(statistic, n);
+    }
+    crate::detectors::noise::NORMAL_NODES
+        .iter()
+        .map(|(z, w)| w * pf_null_p_value((statistic + PF_COLOUR_OFFSET) * (-2.0 * gain_log_se * z).exp() - PF_COLOUR_OFFSET, n))
+        .sum::<f64>()
+        .min(1.0)
+}
+
 /// Statistics of the test on `repetitions` straight lines of `n` samples with independent
 /// Gaussian noise (the null model; by the invariance of the Bayes factor the line and the noise
 /// scale do not matter), evenly spaced angles, `particles` particles. Repetition `r` uses the
@@ -756,7 +812,7 @@ mod tests {
             let ones = vec![1.0; n];
             let white = |v: &[f64]| -> Vec<f64> { (1..n).map(|t| v[t] - phi * v[t - 1]).collect() };
             let (wone, wx, wy) = (white(&ones), white(&x), white(&y));
-            let line = WhitenedLine { intercept: Some(&wone), x: &wx, pivot_x: &x[1..], y: &wy };
+            let line = WhitenedLine { intercept: Some(&wone), x: &wx, pivot_x: &x[1..], y: &wy, restarts: &[] };
             let exact = ChangeDirection { weight: &ones, weighted_x: &x, pivot, phi: &[phi] };
             let (mid, lo, hi) = onset_posterior(&line, &exact, &config).expect("a posterior");
             assert!(lo <= mid && mid <= hi);
@@ -775,7 +831,7 @@ mod tests {
         // Bad input: `None`, no panic.
         let (x, y) = line(60, 0.0, 0, 0.1, 1);
         let ones = vec![1.0; 60];
-        let plain = WhitenedLine { intercept: None, x: &x, pivot_x: &x, y: &y };
+        let plain = WhitenedLine { intercept: None, x: &x, pivot_x: &x, y: &y, restarts: &[] };
         assert!(onset_posterior(&plain, &ChangeDirection { weight: &ones[..5], weighted_x: &x, pivot: 0.0, phi: &[] }, &config).is_none());
         assert!(onset_posterior(&plain, &ChangeDirection { weight: &ones, weighted_x: &x, pivot: f64::NAN, phi: &[] }, &config).is_none());
     }

@@ -43,9 +43,17 @@
 //! (the online use a controller could act on). The bound is conservative (Markov's inequality
 //! does not use the shape of the tail: 20-100 times the simulated tail at 1 %), so the engine
 //! judges the statistic by a null table by window length instead ([`PF_NULL_TABLE`],
-//! [`pf_null_p_value`]), which the invariance makes the same for every line and noise scale;
-//! what whitening leaves of coloured noise is not in it (measured in tests/test_particle_filter.py
-//! and benches/pf_quality.py).
+//! [`pf_null_p_value`]), which the invariance makes the same for every line and noise scale.
+//! What whitening leaves of coloured noise is not in the table: the engine averages the table's
+//! p-value over the AR fit's uncertainty ([`pf_predictive_p_value`], as the break scan does),
+//! and skips the whitened samples that reach back across a stop of the tool
+//! ([`WhitenedLine::restarts`]). Size on the noise grid: benches/pf_quality.py.
+//!
+//! # Where the change happened
+//! On an alarm the change's sample gets its exact posterior given a change
+//! ([`onset_posterior`]: given the sample the model is linear and Gaussian, so every candidate's
+//! marginal likelihood is in closed form), not the filter's particles, whose jump times
+//! collapse onto a few survivors after resampling (path degeneracy).
 
 use rand::{Rng, RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -817,7 +825,7 @@ mod tests {
             let (mid, lo, hi) = onset_posterior(&line, &exact, &config).expect("a posterior");
             assert!(lo <= mid && mid <= hi);
             // Line sample k is series sample k + 1.
-            covered += usize::from(lo + 1 <= at && at <= hi + 1);
+            covered += usize::from(lo < at && at <= hi + 1);
             errors.push((mid as f64 + 1.0 - at as f64).abs());
             widths.push((hi - lo) as f64);
         }

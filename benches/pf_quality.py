@@ -3,7 +3,7 @@ grid of benches/size_grid.py (2 kHz, 0.1 deg; both generators), recall and onset
 coverage on abrupt changes by magnitude (both generators, CST and HDT), and how the
 statistic moves with the particle count (64 to 4,096) on the same curves.
 
-    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only]
+    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only] [--off-grid]
 
 Writes benches/results/pf_quality.json.
 """
@@ -42,6 +42,22 @@ def size(n: int, alpha: float) -> list[dict[str, Any]]:
                          "pf_far": float(np.mean(pf)), "rule_far": float(np.mean(rule))})
             print(f"size {generator:11s} {strategy:4s} {label:9s} pf {100 * rows[-1]['pf_far']:5.1f} % ({len(pf)})  "
                   f"default rule at the same alpha {100 * rows[-1]['rule_far']:5.1f} %", flush=True)
+    return rows
+
+
+def off_grid(n: int, alpha: float) -> list[dict[str, Any]]:
+    """500 Hz and 10 kHz with a 0.1 deg encoder, CST and HDT, white and AR(1) 0.85, seeds 2000 + cell."""
+    rows = []
+    for generator, make in (("independent", size_grid.independent_cell), ("built-in", size_grid.builtin_cell)):
+        cells = [(s, r, c) for s in ("CST", "HDT") for r in (500.0, 10000.0) for c in (("white", 0.0), ("ar1", 0.85))]
+        for k, (strategy, rate, (colour, phi)) in enumerate(cells):
+            r = tightscan.detect_batch(make(n, 2000 + k, strategy, rate, 0.1, colour, phi), config={"pf": True, "pf_alpha": alpha, "alpha": alpha})
+            pf = [bool(v) for v in r["pf_alarm"].to_pylist() if v is not None]
+            rule = [bool(v) for v in r["change_detected"].to_pylist() if v is not None]
+            rows.append({"generator": generator, "strategy": strategy, "rate_hz": rate, "noise": f"{colour} {phi}", "pf_ran": len(pf),
+                         "pf_far": float(np.mean(pf)), "rule_decided": len(rule), "rule_far": float(np.mean(rule))})
+            print(f"off grid {generator:11s} {strategy} {rate:5.0f} Hz {colour} {phi}: pf {100 * np.mean(pf):.1f} % ({len(pf)}), "
+                  f"rule {100 * np.mean(rule):.1f} % ({len(rule)})", flush=True)
     return rows
 
 
@@ -101,8 +117,14 @@ def main() -> int:
     parser.add_argument("--n", type=int, default=200)
     parser.add_argument("--alpha", type=float, default=0.05)
     parser.add_argument("--particles-only", action="store_true")
+    parser.add_argument("--off-grid", action="store_true", help="only the spot check at 500 Hz / 10 kHz (--n 150 in benches/README.md)")
     args = parser.parse_args()
     out: dict[str, Any] = {"alpha": args.alpha, "n": args.n}
+    if args.off_grid:
+        out["off_grid"] = off_grid(args.n, args.alpha)
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "pf_quality_off_grid.json").write_text(json.dumps(out, indent=1))
+        return 0
     if not args.particles_only:
         out["size"] = size(args.n, args.alpha)
         out["power"] = power(args.n, args.alpha)

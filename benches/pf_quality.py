@@ -1,9 +1,9 @@
 """The particle-filter fault test (``pf=True``) against the default rule: size over the noise
 grid of benches/size_grid.py (2 kHz, 0.1 deg; both generators), recall and onset-interval
-coverage on abrupt changes by magnitude (independent generator, CST and HDT), and how the
+coverage on abrupt changes by magnitude (both generators, CST and HDT), and how the
 statistic moves with the particle count (64 to 4,096) on the same curves.
 
-    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only]
+    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only] [--off-grid]
 
 Writes benches/results/pf_quality.json.
 """
@@ -45,29 +45,52 @@ def size(n: int, alpha: float) -> list[dict[str, Any]]:
     return rows
 
 
+def off_grid(n: int, alpha: float) -> list[dict[str, Any]]:
+    """500 Hz and 10 kHz with a 0.1 deg encoder, CST and HDT, white and AR(1) 0.85, seeds 2000 + cell."""
+    rows = []
+    for generator, make in (("independent", size_grid.independent_cell), ("built-in", size_grid.builtin_cell)):
+        cells = [(s, r, c) for s in ("CST", "HDT") for r in (500.0, 10000.0) for c in (("white", 0.0), ("ar1", 0.85))]
+        for k, (strategy, rate, (colour, phi)) in enumerate(cells):
+            r = tightscan.detect_batch(make(n, 2000 + k, strategy, rate, 0.1, colour, phi), config={"pf": True, "pf_alpha": alpha, "alpha": alpha})
+            pf = [bool(v) for v in r["pf_alarm"].to_pylist() if v is not None]
+            rule = [bool(v) for v in r["change_detected"].to_pylist() if v is not None]
+            rows.append({"generator": generator, "strategy": strategy, "rate_hz": rate, "noise": f"{colour} {phi}", "pf_ran": len(pf),
+                         "pf_far": float(np.mean(pf)), "rule_decided": len(rule), "rule_far": float(np.mean(rule))})
+            print(f"off grid {generator:11s} {strategy} {rate:5.0f} Hz {colour} {phi}: pf {100 * np.mean(pf):.1f} % ({len(pf)}), "
+                  f"rule {100 * np.mean(rule):.1f} % ({len(rule)})", flush=True)
+    return rows
+
+
 def power(n: int, alpha: float) -> list[dict[str, Any]]:
     rows = []
-    for strategy in ("CST", "HDT"):
-        for lo, hi in ((0.03, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.3)):
-            fault = ig.FaultConfig(kind="abrupt", magnitude=(lo, hi), signed=True, acts_on="mix")
-            curves, truth = ig.generate(ig.GeneratorConfig(n=n, seed=7000 + int(100 * lo), strategy=strategy, sample_rate_hz=2000.0,
-                                                           encoder_step_deg=0.1, fault=fault))
-            r = tightscan.detect_batch(curves, config={"pf": True, "pf_alpha": alpha, "alpha": alpha})
-            reached = np.array(truth["onset_reached"].to_pylist(), dtype=bool)
-            pf = np.array([bool(v) for v in r["pf_alarm"].to_pylist()])
-            rule = np.array([bool(v) for v in r["change_detected"].to_pylist()])
-            onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
-            a_lo, a_hi, mid = (np.array(r[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi", "pf_change_angle"))
-            ok = pf & reached & np.isfinite(a_lo)
-            cover = float(np.mean((a_lo[ok] <= onset[ok]) & (onset[ok] <= a_hi[ok]))) if ok.any() else float("nan")
-            err = float(np.median(np.abs(mid[ok] - onset[ok]))) if ok.any() else float("nan")
-            width = float(np.median(a_hi[ok] - a_lo[ok])) if ok.any() else float("nan")
-            rows.append({"strategy": strategy, "magnitude": [lo, hi], "reached": int(reached.sum()), "pf_recall": float(pf[reached].mean()),
-                         "rule_recall": float(rule[reached].mean()), "coverage90": cover, "median_onset_error_deg": err,
-                         "median_interval_deg": width})
-            x = rows[-1]
-            print(f"power {strategy} |change| {lo:.2f}-{hi:.2f}: pf recall {x['pf_recall']:.3f}, default rule {x['rule_recall']:.3f} "
-                  f"({x['reached']} reached); 90 % interval covers {cover:.2f}, median error {err:.2f} deg, width {width:.2f} deg", flush=True)
+    for generator in ("independent", "built-in"):
+        for strategy in ("CST", "HDT"):
+            for lo, hi in ((0.03, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.3)):
+                if generator == "independent":
+                    fault = ig.FaultConfig(kind="abrupt", magnitude=(lo, hi), signed=True, acts_on="mix")
+                    curves, truth = ig.generate(ig.GeneratorConfig(n=n, seed=7000 + int(100 * lo), strategy=strategy, sample_rate_hz=2000.0,
+                                                                   encoder_step_deg=0.1, fault=fault))
+                    reached = np.array(truth["onset_reached"].to_pylist(), dtype=bool)
+                else:
+                    curves, truth = tightscan.simulate(n, seed=8000 + int(100 * lo), fault_fraction=1.0, strategies=[strategy],
+                                                       fault_kinds=["abrupt"], magnitude_range=(lo, hi))
+                    reached = np.isfinite(np.array(truth["onset_angle"].to_pylist(), dtype=float))
+                r = tightscan.detect_batch(curves, config={"pf": True, "pf_alpha": alpha, "alpha": alpha})
+                pf = np.array([bool(v) for v in r["pf_alarm"].to_pylist()])
+                rule = np.array([bool(v) for v in r["change_detected"].to_pylist()])
+                onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
+                a_lo, a_hi, mid = (np.array(r[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi", "pf_change_angle"))
+                ok = pf & reached & np.isfinite(a_lo)
+                cover = float(np.mean((a_lo[ok] <= onset[ok]) & (onset[ok] <= a_hi[ok]))) if ok.any() else float("nan")
+                err = float(np.median(np.abs(mid[ok] - onset[ok]))) if ok.any() else float("nan")
+                width = float(np.median(a_hi[ok] - a_lo[ok])) if ok.any() else float("nan")
+                rows.append({"generator": generator, "strategy": strategy, "magnitude": [lo, hi], "reached": int(reached.sum()),
+                             "pf_recall": float(pf[reached].mean()), "rule_recall": float(rule[reached].mean()), "coverage90": cover,
+                             "covered_alarms": int(ok.sum()), "median_onset_error_deg": err, "median_interval_deg": width})
+                x = rows[-1]
+                print(f"power {generator:11s} {strategy} |change| {lo:.2f}-{hi:.2f}: pf recall {x['pf_recall']:.3f}, default rule {x['rule_recall']:.3f} "
+                      f"({x['reached']} reached); 90 % interval covers {cover:.2f} of {int(ok.sum())}, median error {err:.2f} deg, "
+                      f"width {width:.2f} deg", flush=True)
     return rows
 
 
@@ -94,8 +117,14 @@ def main() -> int:
     parser.add_argument("--n", type=int, default=200)
     parser.add_argument("--alpha", type=float, default=0.05)
     parser.add_argument("--particles-only", action="store_true")
+    parser.add_argument("--off-grid", action="store_true", help="only the spot check at 500 Hz / 10 kHz (--n 150 in benches/README.md)")
     args = parser.parse_args()
     out: dict[str, Any] = {"alpha": args.alpha, "n": args.n}
+    if args.off_grid:
+        out["off_grid"] = off_grid(args.n, args.alpha)
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "pf_quality_off_grid.json").write_text(json.dumps(out, indent=1))
+        return 0
     if not args.particles_only:
         out["size"] = size(args.n, args.alpha)
         out["power"] = power(args.n, args.alpha)

@@ -31,7 +31,7 @@ ALPHA = 0.05
 PF = {"pf": True, "pf_alpha": ALPHA}
 CELLS = [(s, c, p) for s in ("CST", "HDT") for c, p in (("white", 0.0), ("ar1", 0.85))]
 N_CELL = 100  # clean curves per cell and generator: 400 per generator
-COVERAGE_FLOOR = 0.6  # measured 0.72 (86 of 120 reached changes), below the nominal 0.90
+COVERAGE_FLOOR = 0.74  # measured 0.786 (92 of 117 alarms), below the nominal 0.90 (0.72 before the exact posterior)
 
 
 def _pf_alarms(curves: pa.Table, **extra: object) -> np.ndarray:
@@ -43,19 +43,23 @@ def _pf_alarms(curves: pa.Table, **extra: object) -> np.ndarray:
 
 @pytest.mark.parametrize("generator", ["built-in", "independent"])
 def test_size_on_the_noise_grid_is_near_alpha(generator: str) -> None:
-    # Measured at these seeds: built-in 5.5 % pooled (cells 7, 9, 5, 1 %), independent 3.75 %
-    # (1, 4, 3, 7 %). Pooled over 400 curves, binomial sd at 5 % is 1.1 points. Ville's bound
-    # alone ran at 0-1 %; a free torque step in the fault model ran at 30 % in the built-in CST
-    # AR(1) 0.85 cell. Not tested here because they fail: CSDT under AR(1) 0.9 (20-22 %, the
-    # pause's relaxation left in the whitened window), see benches/pf_quality.py.
+    # The p-value is averaged over the whitening's uncertainty and the filter skips what a
+    # CSDT pause leaves (detectors/pf.rs). Measured at these seeds: built-in cells 8, 4, 5, 0 %
+    # and CSDT AR(1) 0.9 5.5 % (pooled 4.7 %), independent 1, 1, 3, 3 % and 3 % (2.3 %);
+    # CSDT AR(1) 0.9 ran at 20-22 % before (benches/pf_quality.py), strong colour is
+    # conservative now (1-2 % at AR(1) 0.85-0.9 on 600 curves a cell). Binomial sd of a pooled
+    # 5 % over 600 curves: 0.9 points. Ville's bound alone ran at 0-1 %; a free torque step in
+    # the fault model ran at 30 % in the built-in CST AR(1) 0.85 cell.
     make = size_grid.builtin_cell if generator == "built-in" else size_grid.independent_cell
-    rates = []
+    alarms = []
     for k, (strategy, colour, phi) in enumerate(CELLS):
-        alarms = _pf_alarms(make(N_CELL, 5100 + k, strategy, 2000.0, 0.1, colour, phi))
-        rates.append(float(alarms.mean()))
-        assert rates[-1] <= 0.13, f"{generator} {strategy} {colour}: {rates[-1]:.3f}"
-    pooled = float(np.mean(rates))
-    assert 0.02 <= pooled <= 0.09, f"{generator}: pooled false-alarm rate {pooled:.4f} (cells {rates})"
+        cell = _pf_alarms(make(N_CELL, 5100 + k, strategy, 2000.0, 0.1, colour, phi))
+        alarms.append(cell)
+        assert cell.mean() <= 0.13, f"{generator} {strategy} {colour}: {cell.mean():.3f}"
+    pause = _pf_alarms(make(2 * N_CELL, 5100 + len(CELLS), "CSDT", 2000.0, 0.1, "ar1", 0.9))
+    assert pause.mean() <= 0.10, f"{generator} CSDT AR(1) 0.9: {pause.mean():.3f}"
+    pooled = float(np.concatenate([*alarms, pause]).mean())
+    assert 0.015 <= pooled <= 0.08, f"{generator}: pooled false-alarm rate {pooled:.4f} (cells {[a.mean() for a in alarms]}, pause {pause.mean()})"
 
 
 @pytest.fixture(scope="module")
@@ -88,10 +92,12 @@ def test_onset_credible_interval_is_roughly_calibrated(abrupt_changes: tuple[pa.
     # The median onset lies near the true one (window spans are tens of degrees)...
     error = np.abs(mid[ok] - onset[ok])
     assert float(np.median(error)) < 0.5, f"median onset error {np.median(error):.2f} deg"
-    # ... and the nominal 90 % interval covers it in a fair share of the curves, not in 90 %:
-    # a change of 20-30 % is placed to a sample or two, and the particles share their jump
-    # times after resampling (path degeneracy), so the interval is often one sample wide and
-    # misses a change that fell between the neighbouring samples.
+    # ... and the nominal 90 % interval covers it in most curves. The interval is the exact
+    # posterior of the change's sample (the marginal likelihood of every candidate, the data
+    # after the change included), no longer the filter's surviving paths, which share their jump
+    # times after resampling (0.72 here with those). Still under the nominal 0.90: the misses
+    # are placements a fraction of a sample early (the onset just past the interval's end) and a
+    # few far off; benches/pf_quality.py measures it on both generators.
     coverage = float(np.mean((lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])))
     assert coverage >= COVERAGE_FLOOR, f"coverage {coverage:.3f}"
 

@@ -181,13 +181,14 @@ class ParticleFilterConfig:
 
     Its statistic (``pf_statistic``) is the largest log Bayes factor of the fault model against
     no fault; being invariant to the line and the noise scale, its null distribution depends on
-    the window length only, and ``pf_p_value`` comes from a shipped null table by length
-    (``exp(-pf_statistic)`` is Ville's bound: valid for any length and particle count, but
-    conservative). ``particles`` trades cost (about 25-35 ns per particle and window sample)
+    the window length only, and ``pf_p_value`` comes from a shipped null table by length,
+    averaged over the whitening's uncertainty (``exp(-pf_statistic)`` is Ville's bound: valid
+    for any length and particle count, but conservative). On an alarm, ``pf_change_*`` come from
+    the exact posterior of the change's sample. ``particles`` trades cost (about 25-35 ns per particle and window sample)
     against the Monte Carlo error of the Bayes factor; ``seed + row`` seeds each tightening,
     so results do not depend on the threads. ``friction_track`` adds ``pf_friction``, the
-    posterior mean torque rate after every tested sample (for plots). Not in the default rule: on simulated curves its
-    recall is below the rule's (benches/README.md); it adds the online view (the posterior of
+    posterior mean torque rate after every tested sample (for plots). Not in the default rule: it adds no recall to
+    the rule at an equal false-alarm rate (benches/README.md); it adds the online view (the posterior of
     the fault mode and of where it began)."""
 
     enabled: bool = _DEFAULTS["pf"]

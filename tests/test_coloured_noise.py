@@ -139,6 +139,11 @@ def test_size_and_power_at_phi_0_9_on_the_independent_generator() -> None:
     # 15-45 % were found in 0.875 of the curves at phi 0.85 before it (at 3.3 % false alarms),
     # 0.82 after (n = 200, benches/transfer_check.py), 0.80 with the union bound; where phi is this close to 1 the whitened
     # change is small against the noise left.
+    # The averaging treats the statistic as growing with the leftover long-run variance to the
+    # measured power kappa (WHITENING_SENSITIVITY), not 1: at these seeds the clean curves alarm
+    # at 1.20 % (exponent 1: 0.87 %; kappa also in short windows fitted near the unit root:
+    # 4.16 %, which the exception for them exists to stop) and the faulty ones are found in
+    # 0.935 (exponent 1: 0.89).
     import independent_generator as ig
 
     noise = ig.NoiseConfig(colour="ar1", phi=0.9)
@@ -154,7 +159,7 @@ def test_size_and_power_at_phi_0_9_on_the_independent_generator() -> None:
         ig.GeneratorConfig(n=200, seed=91, strategy="CST", encoder_step_deg=0.1, noise=noise85, fault=fault)
     )
     found = [bool(v) for v in tightscan.detect_batch(faulty)["change_detected"].to_pylist()]
-    assert float(np.mean(found)) >= 0.75
+    assert float(np.mean(found)) >= 0.91
 
 
 @pytest.mark.slow

@@ -347,7 +347,7 @@ pub const SENSITIVITY_LAG1: [f64; 7] = [0.0, 0.3, 0.5, 0.7, 0.85, 0.9, 0.95];
 /// A long-run variance `lambda` times the white one would scale an F-type ratio by `lambda`
 /// (kappa 1) if the lines fitted to the segments kept the leftover's slow part; they absorb
 /// it, the more so the shorter the window and the slower the leftover (phi near 1), so kappa
-/// is 0.05-0.9. Made by `simulate_miswhitened_quantiles` with AR(1) noise, 50,000 windows per
+/// is 0.04-0.92. Made by `simulate_miswhitened_quantiles` with AR(1) noise, 50,000 windows per
 /// cell with common random numbers (the ignored test `whitening_sensitivity_experiment`).
 pub static WHITENING_SENSITIVITY: [[f64; 7]; 8] = [
     [0.53, 0.57, 0.53, 0.42, 0.22, 0.13, 0.04], // n = 30

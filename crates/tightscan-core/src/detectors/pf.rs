@@ -228,6 +228,50 @@ pub struct WhitenedLine<'a> {
 /// relaxation of a few noise sds.
 const RESTART_LEVEL_VAR: f64 = 1.0;
 
+/// A line's first `n` samples in the filter's units: the angle over the window's span (the
+/// jump's prior is per span; with a constant intercept its offset is taken out too) and the
+/// torque over its largest magnitude (the Bayes factor and the onset's posterior do not depend
+/// on the torque's scale, and unit scales keep the filter well conditioned). `None` when the
+/// angle has no span or the torque is all zero.
+struct Scaled {
+    u: Vec<f64>,
+    z: Vec<f64>,
+    x_shift: f64,
+    x_span: f64,
+    y_spread: f64,
+}
+
+impl Scaled {
+    fn of(line: &WhitenedLine<'_>, n: usize) -> Option<Self> {
+        let (x, y) = (&line.x[..n], &line.y[..n]);
+        let (x_lo, x_hi) = x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        let x_span = x_hi - x_lo;
+        let y_spread = y.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        if !(x_span > 0.0) || !(y_spread > 0.0) {
+            return None;
+        }
+        let x_shift = if line.intercept.is_none() { x_lo } else { 0.0 };
+        let u = x.iter().map(|v| (v - x_shift) / x_span).collect();
+        let z = y.iter().map(|v| v / y_spread).collect();
+        Some(Self { u, z, x_shift, x_span, y_spread })
+    }
+}
+
+/// Cross-products of the line's columns over its first `m` samples:
+/// `[1'1, 1'u, u'u, 1'z, u'z, z'z]` (`1` the whitened intercept).
+fn cross_products(one: &[f64], u: &[f64], z: &[f64], m: usize) -> [f64; 6] {
+    let mut s = [0.0; 6];
+    for t in 0..m {
+        s[0] += one[t] * one[t];
+        s[1] += one[t] * u[t];
+        s[2] += u[t] * u[t];
+        s[3] += one[t] * z[t];
+        s[4] += u[t] * z[t];
+        s[5] += z[t] * z[t];
+    }
+    s
+}
+
 /// [`pf_fault_test`] of a weighted and whitened line ([`WhitenedLine`]).
 pub fn pf_fault_test_whitened(line: &WhitenedLine<'_>, alpha: f64, config: &PfConfig) -> Option<PfResult> {
     let (x, y) = (line.x, line.y);
@@ -242,29 +286,11 @@ pub fn pf_fault_test_whitened(line: &WhitenedLine<'_>, alpha: f64, config: &PfCo
     if n < m + 2 || x[..n].iter().chain(&y[..n]).chain(&line.pivot_x[..n]).chain(one).any(|v| !v.is_finite()) {
         return None;
     }
-    // Scale the angle to the window's span and the torque to its spread: the Bayes factor is
-    // invariant to the torque's scale, and unit scales keep the filter well conditioned. With
-    // a constant intercept the angle's offset is taken out too.
-    let (x_lo, x_hi) = x[..n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-    let x_span = x_hi - x_lo;
-    let x_shift = if line.intercept.is_none() { x_lo } else { 0.0 };
-    let y_spread = y[..n].iter().map(|v| v.abs()).fold(0.0, f64::max);
-    if !(x_span > 0.0) || !(y_spread > 0.0) {
-        return None;
-    }
-    let u: Vec<f64> = x[..n].iter().map(|v| (v - x_shift) / x_span).collect();
+    let Scaled { u, z, x_shift, x_span, y_spread } = Scaled::of(line, n)?;
     let kink_u: Vec<f64> = line.pivot_x[..n].iter().map(|v| (v - x_shift) / x_span).collect();
-    let z: Vec<f64> = y[..n].iter().map(|v| v / y_spread).collect();
 
     // Training: least squares on the first m samples (flat prior on c, b; 1/s^2 on s^2).
-    let (mut s11, mut s1u, mut suu, mut s1z, mut suz) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for k in 0..m {
-        s11 += one[k] * one[k];
-        s1u += one[k] * u[k];
-        suu += u[k] * u[k];
-        s1z += one[k] * z[k];
-        suz += u[k] * z[k];
-    }
+    let [s11, s1u, suu, s1z, suz, _] = cross_products(one, &u, &z, m);
     let det = s11 * suu - s1u * s1u;
     if !(det > 1e-12 * s11 * suu.max(1e-300)) {
         return None;
@@ -475,31 +501,13 @@ pub fn onset_posterior(line: &WhitenedLine<'_>, direction: &ChangeDirection<'_>,
     {
         return None;
     }
-    // The filter's units: the angle over the window's span (the jump's prior is per span), the
-    // torque over its largest magnitude (the posterior over k does not depend on it).
-    let (x_lo, x_hi) = x[..n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-    let x_span = x_hi - x_lo;
-    let y_spread = y[..n].iter().map(|v| v.abs()).fold(0.0, f64::max);
-    if !(x_span > 0.0) || !(y_spread > 0.0) {
-        return None;
-    }
-    let x_shift = if line.intercept.is_none() { x_lo } else { 0.0 };
-    let u: Vec<f64> = x[..n].iter().map(|v| (v - x_shift) / x_span).collect();
-    let z: Vec<f64> = y[..n].iter().map(|v| v / y_spread).collect();
+    let Scaled { u, z, x_span, .. } = Scaled::of(line, n)?;
     // The whitened direction once the filter reaches back no further than the change.
     let settled: Vec<f64> = (0..n).map(|t| (x[t] - direction.pivot * one[t]) / x_span).collect();
     // The unwhitened direction (raw index t + p is the line's sample t).
     let unwhitened = |r: usize| (direction.weighted_x[r] - direction.pivot * direction.weight[r]) / x_span;
     // Totals of the line's cross-products.
-    let (mut s11, mut s1u, mut suu, mut s1z, mut suz, mut szz) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for t in 0..n {
-        s11 += one[t] * one[t];
-        s1u += one[t] * u[t];
-        suu += u[t] * u[t];
-        s1z += one[t] * z[t];
-        suz += u[t] * z[t];
-        szz += z[t] * z[t];
-    }
+    let [s11, s1u, suu, s1z, suz, szz] = cross_products(one, &u, &z, n);
     // Suffix sums of the settled direction's cross-products (1, u, d, z against d), built
     // from the end so that nothing is subtracted.
     let mut suffix = vec![[0.0_f64; 4]; n + 1];

@@ -30,7 +30,8 @@ impl Detector {
         let breaks = &self.config.breaks;
         // The episode scan's share goes back to the scan where the noise is strongly coloured
         // ([`EPISODE_MAX_LAG1`]).
-        let episode_fraction = if s.noise.lag1_autocorrelation() >= EPISODE_MAX_LAG1 { 0.0 } else { self.episode_fraction };
+        let lag1 = s.noise.lag1_autocorrelation();
+        let episode_fraction = if lag1 >= EPISODE_MAX_LAG1 { 0.0 } else { self.episode_fraction };
         let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction - breaks.head_fraction - episode_fraction);
         // A window too short for the scan gets no break row, the end and start tests included.
         // Running them alone there found 5 of 600 late HDT rises on the independent generator
@@ -61,7 +62,7 @@ impl Detector {
         // uncertain, the scan is judged by its p-value averaged over it
         // (`sup_lr_predictive_p_value`), with the statistic growing as that variance to the
         // power kappa (`scan_sensitivity`); for white noise by the table's critical value.
-        let se = s.noise.gain_log_se * scan_sensitivity(nw, s.noise.lag1_autocorrelation());
+        let se = s.noise.gain_log_se * scan_sensitivity(nw, lag1);
         let p_value = sup_lr_predictive_p_value(nw, scan.statistic, se);
         let significant = if se > 0.0 { p_value <= scan_alpha } else { scan.statistic > critical_value };
         let scan_alarm = significant
@@ -287,7 +288,7 @@ fn slope_change_lr(x: &[f64], y: &[f64], k: usize) -> f64 {
 /// (benches/detection_quality.py, 1,500 faulty curves a cell): independent generator 2 kHz
 /// 0.175 -> 0.125 deg, 1 kHz 0.390 -> 0.249, AR(1) 0.5 0.166 -> 0.123; built-in 2 kHz 0.051 ->
 /// 0.049, 1 kHz 0.099 -> 0.095, 10 kHz 0.038 -> 0.013; independent 10 kHz 0.031 -> 0.047 (500).
-fn change_start_angle<A: Sample>(angle: &[A], s: &Scratch, j: usize) -> f64 {
+pub(super) fn change_start_angle<A: Sample>(angle: &[A], s: &Scratch, j: usize) -> f64 {
     let recorded = angle[s.index[j]].to_f64();
     match (s.x.get(j), s.xs.get(j), j.checked_sub(1).and_then(|i| s.xs.get(i))) {
         (Some(x), Some(xs), Some(before)) => recorded - x + 0.5 * (before + xs),

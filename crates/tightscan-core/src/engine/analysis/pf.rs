@@ -8,6 +8,7 @@ use crate::engine::input::Sample;
 use crate::engine::rows::{PfOnset, PfRow};
 use crate::engine::Detector;
 
+use super::breaks::change_start_angle;
 use super::Scratch;
 
 impl Detector {
@@ -78,7 +79,7 @@ impl Detector {
             // angle is halfway between the median's sample and the one before it.
             let before = |j: usize| interpolated(j.saturating_sub(1));
             let at_mid = interpolated(mid)?;
-            let angle = before(mid).map_or(at_mid, |b| 0.5 * (b + at_mid));
+            let angle = change_start_angle(angle, s, mid);
             Some(PfOnset { index, angle, lo_angle: before(lo).unwrap_or(at_mid).min(angle), hi_angle: interpolated(hi)?.max(angle) })
         });
         Some(PfRow {

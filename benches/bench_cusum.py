@@ -271,11 +271,17 @@ class RuleRow(NamedTuple):
     cusum: Row = FAILED
 
 
-def sup_lr(x: np.ndarray, y: np.ndarray) -> tuple[float, int] | None:
-    """sup-LR of one break in ``y = a + b x`` over every split with ``max(ceil(5 % n), 10)``
-    samples a side (detectors/breakpoint.rs ``sup_lr_scan``), by prefix sums: the statistic
-    and the first sample of the right segment at its maximum."""
-    n = x.size
+def sup_lr(x: np.ndarray, y: np.ndarray, phi: float = 0.0) -> tuple[float, int] | None:
+    """sup-LR of one break in ``y = a + b x`` under AR(1) noise of coefficient ``phi``, the GLS
+    form (detectors/gls_breakpoint.rs ``gls_sup_lr_scan``): ``x``, ``y`` recorded, whitened
+    here; columns 1, the whitened angle, the whitened step (1 at the split, ``1 - phi`` after
+    it) and the whitened step x angle (the recorded angle at the split, the whitened one
+    after it), over every split with ``max(ceil(5 % n), 10)`` whitened samples a side, the
+    normal equations from prefix sums. The statistic and the split (a whitened sample)."""
+    gain = 1.0 - phi
+    # White noise (phi 0) keeps every sample, as the engine does with no noise model.
+    wy, wx, x_at = (y[1:] - phi * y[:-1], x[1:] - phi * x[:-1], x[1:]) if phi else (y, x, x)
+    n = wx.size
     m = max(math.ceil(0.05 * n), 10)
     if n < 2 * m:
         return None
@@ -283,23 +289,30 @@ def sup_lr(x: np.ndarray, y: np.ndarray) -> tuple[float, int] | None:
     def pre(v: np.ndarray) -> np.ndarray:
         return np.concatenate(([0.0], np.cumsum(v)))
 
-    s1 = np.arange(n + 1, dtype=np.float64)
-    sx, sy, sxx, sxy, syy = pre(x), pre(y), pre(x * x), pre(x * y), pre(y * y)
-
-    def rss(k_n: Any, k_x: Any, k_y: Any, k_xx: Any, k_xy: Any, k_yy: Any) -> Any:
-        vx = k_xx - k_x * k_x / k_n
-        cxy = k_xy - k_x * k_y / k_n
-        return np.maximum(k_yy - k_y * k_y / k_n - cxy * cxy / vx, 0.0)
-
-    k = np.arange(m, n - m + 1)
-    left = rss(s1[k], sx[k], sy[k], sxx[k], sxy[k], syy[k])
-    right = rss(n - s1[k], sx[n] - sx[k], sy[n] - sy[k], sxx[n] - sxx[k], sxy[n] - sxy[k], syy[n] - syy[k])
-    full = rss(float(n), sx[n], sy[n], sxx[n], sxy[n], syy[n])
+    p1, p2, pt, pt2, pq = pre(wx), pre(wx * wx), pre(wy), pre(wy * wy), pre(wx * wy)
+    sxx = p2[n] - p1[n] ** 2 / n
+    rss0 = (pt2[n] - pt[n] ** 2 / n) - (pq[n] - p1[n] * pt[n] / n) ** 2 / sxx
+    ks = np.arange(m, n - m + 1)
+    after = ks + 1
+    cnt = (n - after).astype(np.float64)
+    r1, r2, rt, rq = p1[n] - p1[after], p2[n] - p2[after], pt[n] - pt[after], pq[n] - pq[after]
+    xk, wk, yk = x_at[ks], wx[ks], wy[ks]
+    gram = np.empty((ks.size, 4, 4))
+    gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1] = n, p1[n], p2[n]
+    gram[:, 0, 2], gram[:, 0, 3] = gain * cnt + 1.0, r1 + xk
+    gram[:, 1, 2], gram[:, 1, 3] = gain * r1 + wk, r2 + wk * xk
+    gram[:, 2, 2], gram[:, 2, 3], gram[:, 3, 3] = gain * gain * cnt + 1.0, gain * r1 + xk, r2 + xk * xk
+    for i in range(4):
+        for j in range(i):
+            gram[:, i, j] = gram[:, j, i]
+    rhs = np.stack([np.full(ks.size, pt[n]), np.full(ks.size, pq[n]), gain * rt + yk, rq + xk * yk], axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        lr = n * np.log(full / (left + right))
+        theta = np.linalg.solve(gram, rhs[..., None])[..., 0]
+        rss = pt2[n] - np.sum(theta * rhs, axis=1)
+        lr = n * np.log(rss0 / np.maximum(rss, 1e-300 * rss0))
     lr = np.where(np.isfinite(lr), lr, -np.inf)
     j = int(np.argmax(lr))
-    return float(lr[j]), int(k[j])
+    return float(lr[j]), int(ks[j])
 
 
 def default_rule_one(a: np.ndarray, t: np.ndarray, window: tuple[float, float], lag1: float, break_cv: float, h: float, p: Params) -> RuleRow:
@@ -322,9 +335,9 @@ def default_rule_one(a: np.ndarray, t: np.ndarray, window: tuple[float, float], 
         return RuleRow(False)
     start, end = int(idx[0]), int(idx[-1]) + 1
     x, y = a[start:end] - a[start], t[start:end] - t[start]
+    scan = sup_lr(x, y, lag1 or 0.0)
     if lag1:
         x, y = x[1:] - lag1 * x[:-1], y[1:] - lag1 * y[:-1]
-    scan = sup_lr(x, y)
     fired = bool(scan is not None and scan[0] > break_cv)
     if fired and scan is not None and scan[0] <= 2.0 * break_cv:
         # the encoder-step rule: a break counts when its jump exceeds 1.5 encoder steps

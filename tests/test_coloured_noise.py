@@ -162,6 +162,24 @@ def test_size_and_power_at_phi_0_9_on_the_independent_generator() -> None:
     assert float(np.mean(found)) >= 0.91
 
 
+def test_small_steps_under_strong_colour_are_found_by_the_gls_scan() -> None:
+    # Abrupt friction changes of 3-15 % on the independent generator's CST curves under AR(1)
+    # 0.85: the torque step whitens to its full height at the change's first sample and 0.15 of
+    # it after, so a scan fitting two lines to the whitened window leaves most of the evidence
+    # in its residuals. With the step whitened as the line (the GLS break regression,
+    # detectors/gls_breakpoint.rs) 366 of these 400 curves are found (0.915); with two lines
+    # 325 (0.8125). The floor sits two binomial sd under the first and four over the second.
+    import independent_generator as ig
+
+    fault = ig.FaultConfig(kind="abrupt", magnitude=(0.03, 0.15), fraction_faulty=1.0)
+    noise = ig.NoiseConfig(colour="ar1", phi=0.85)
+    faulty, _ = ig.generate(
+        ig.GeneratorConfig(n=400, seed=93, strategy="CST", encoder_step_deg=0.1, noise=noise, fault=fault)
+    )
+    found = [bool(v) for v in tightscan.detect_batch(faulty)["change_detected"].to_pylist()]
+    assert float(np.mean(found)) >= 0.88
+
+
 @pytest.mark.slow
 def test_size_on_a_slow_channel_under_coloured_noise_is_bounded() -> None:
     """500 Hz, AR(1) 0.85 (the independent generator; 0.1 deg encoder, and 0.5 deg for CST): a

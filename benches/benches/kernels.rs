@@ -6,6 +6,8 @@
 //! |-------------|-----------------------|---------------------------------------------------|---------------------|
 //! | `cusum`     | `update/10000`        | 1e4 N(0, 1) increments, Xoshiro256++ seed 42      | increments          |
 //! | `cusum`     | `update/100000`       | 1e5 N(0, 1) increments, Xoshiro256++ seed 42      | increments          |
+//! | `break_scan`| `two_lines/500`       | 500-sample AR(1) 0.85 window, whitened, seed 42   | window samples      |
+//! | `break_scan`| `gls/500`             | the same window, GLS break regression (AR(1))     | window samples      |
 //! | `detect`    | `tightenings/1000`    | `simulate(n = 1000, seed = 7)`, default config    | samples (all rows)  |
 //! | `detect`    | `tightenings/10000`   | `simulate(n = 10000, seed = 7)`, default config   | samples (all rows)  |
 //! | `simulate`  | `tightenings/1000`    | `SimulationConfig { n: 1000, seed: 7, .. }`       | tightenings         |
@@ -26,6 +28,9 @@
 //! whitened local-quadratic noise, `block_noise`, and the Student t fitted to it over the grid
 //! of degrees of freedom, the heavy-tail check every window gets). The last two were 20 % and
 //! 40-50 % of a warm detect's instructions before issue 15's work (callgrind).
+//!
+//! `break_scan` compares the two-line sup-LR scan with the GLS break regression the engine runs
+//! under AR noise (`detectors/gls_breakpoint.rs`): the price of the whitened step's edge rows.
 //!
 //! The CUSUM uses kappa = 0.5 and the threshold of the default detector (two-sided ARL0 = 3,000
 //! blocks, h ~ 6.4). The recursion keeps running after the first alarm, so every increment
@@ -54,7 +59,9 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use tightscan_core::detectors::breakpoint::sup_lr_scan;
 use tightscan_core::detectors::cusum::TwoSidedCusum;
+use tightscan_core::detectors::gls_breakpoint::{gls_sup_lr_scan, GlsScratch};
 use tightscan_core::engine::input::{ChannelRow, Samples, TighteningTable};
 use tightscan_core::detectors::noise::{block_noise, estimate_noise_in, fit_student_t_groups, NoiseScratch};
 use tightscan_core::physics::phases::{find_phases, PhaseScratch};
@@ -113,6 +120,33 @@ fn bench_cusum(c: &mut Criterion) {
             });
         });
     }
+    group.finish();
+}
+
+/// One 500-sample window of a line under AR(1) 0.85 noise, whitened with that coefficient: the
+/// two-line scan and the GLS scan on it (`Throughput::Elements(500)`).
+fn bench_break_scan(c: &mut Criterion) {
+    let (n, phi) = (500, 0.85);
+    let e = normal_increments(n + 1, CUSUM_SEED);
+    let x: Vec<f64> = (0..=n).map(|i| i as f64 * 0.1).collect();
+    let mut noise = 0.0;
+    let y: Vec<f64> = x.iter().zip(&e).map(|(xi, ei)| {
+        noise = phi * noise + 0.05 * ei;
+        2.0 + 1.5 * xi + noise
+    }).collect();
+    let wx: Vec<f64> = x.windows(2).map(|w| w[1] - phi * w[0]).collect();
+    let wy: Vec<f64> = y.windows(2).map(|w| w[1] - phi * w[0]).collect();
+    let seg = tightscan_core::detectors::breakpoint::min_segment(n);
+    let mut group = c.benchmark_group("break_scan");
+    group.throughput(Throughput::Elements(n as u64));
+    group.bench_function(BenchmarkId::new("two_lines", n), |b| {
+        let mut prefix = Vec::new();
+        b.iter(|| sup_lr_scan(black_box(&wx), black_box(&wy), seg, &mut prefix).map(|s| s.statistic));
+    });
+    group.bench_function(BenchmarkId::new("gls", n), |b| {
+        let mut scratch = GlsScratch::default();
+        b.iter(|| gls_sup_lr_scan(black_box(&wx), black_box(&wy), &x, &[phi], &[], seg, &mut scratch, None).map(|s| s.statistic));
+    });
     group.finish();
 }
 
@@ -305,5 +339,5 @@ fn bench_stages(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_cusum, bench_pf, bench_detect, bench_simulate, bench_stages);
+criterion_group!(benches, bench_cusum, bench_break_scan, bench_pf, bench_detect, bench_simulate, bench_stages);
 criterion_main!(benches);

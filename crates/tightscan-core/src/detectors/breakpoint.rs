@@ -23,6 +23,10 @@
 //! (see [`simulate_sup_lr_quantiles`] for how it was made). Decelerating tools (HDT) space the
 //! samples unevenly; the size on such curves is checked by test.
 //!
+//! Under AR noise the engine runs this scan as a GLS regression, the step whitened as the line
+//! is ([`crate::detectors::gls_breakpoint`]); this two-line form is its white-noise case, and
+//! its table the first of that module's.
+//!
 //! Known limit: an angle encoder whose resolution is close to the angle advanced per sample
 //! makes a slow sawtooth of quantisation error that wraps with a step of one resolution: a small
 //! torque step of its own. On simulated constant-speed curves with 0.1 deg resolution this
@@ -364,6 +368,12 @@ pub static WHITENING_SENSITIVITY: [[f64; 7]; 8] = [
 /// window of n whitened samples whose noise model has lag-1 autocorrelation `lag1`:
 /// interpolated linearly in ln n and in `lag1` (clamped to the table).
 pub fn whitening_sensitivity(n: usize, lag1: f64) -> f64 {
+    sensitivity_from(&WHITENING_SENSITIVITY, n, lag1)
+}
+
+/// A sensitivity table's value (rows [`TABLE_N`], columns [`SENSITIVITY_LAG1`]) for n and
+/// `lag1`, interpolated as [`whitening_sensitivity`] says.
+pub(crate) fn sensitivity_from(table: &[[f64; 7]; 8], n: usize, lag1: f64) -> f64 {
     let lag1 = if lag1.is_finite() { lag1.clamp(SENSITIVITY_LAG1[0], SENSITIVITY_LAG1[SENSITIVITY_LAG1.len() - 1]) } else { 0.0 };
     let j = (1..SENSITIVITY_LAG1.len()).find(|&j| lag1 <= SENSITIVITY_LAG1[j]).unwrap_or(SENSITIVITY_LAG1.len() - 1);
     let t = (lag1 - SENSITIVITY_LAG1[j - 1]) / (SENSITIVITY_LAG1[j] - SENSITIVITY_LAG1[j - 1]);
@@ -372,7 +382,7 @@ pub fn whitening_sensitivity(n: usize, lag1: f64) -> f64 {
     let (la, lb) = ((TABLE_N[i - 1] as f64).ln(), (TABLE_N[i] as f64).ln());
     let u = (n.ln() - la) / (lb - la);
     let at = |row: &[f64; 7]| row[j - 1] + t * (row[j] - row[j - 1]);
-    let (a, b) = (at(&WHITENING_SENSITIVITY[i - 1]), at(&WHITENING_SENSITIVITY[i]));
+    let (a, b) = (at(&table[i - 1]), at(&table[i]));
     a + u * (b - a)
 }
 
@@ -414,7 +424,7 @@ where
 }
 
 /// The (1 - alpha) quantile of `stats` for each alpha of [`TABLE_ALPHA`] (empty: none).
-fn upper_quantiles(mut stats: Vec<f64>) -> Vec<f64> {
+pub(crate) fn upper_quantiles(mut stats: Vec<f64>) -> Vec<f64> {
     stats.sort_by(f64::total_cmp);
     let reps = stats.len();
     if reps == 0 {

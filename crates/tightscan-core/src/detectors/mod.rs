@@ -7,6 +7,7 @@ pub mod breakpoint;
 pub mod critical_values;
 pub mod cusum;
 pub mod episode;
+pub mod gls_breakpoint;
 pub mod kde;
 pub mod monitor;
 pub mod noise;

@@ -229,7 +229,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("cusum_block_angle", ResultType::Float64, "deg", "angle width of one block"),
     ("break_alarm", ResultType::Boolean, "", "the sup-LR scan, the end test, the start test or the episode scan found a break (or an episode) of the elastic line at break_alpha"),
     ("break_statistic", ResultType::Float64, "", "sup-LR statistic (largest likelihood ratio over split points)"),
-    ("break_critical_value", ResultType::Float64, "", "critical value at break_alpha for this window's sample count"),
+    ("break_critical_value", ResultType::Float64, "", "critical value of break_statistic at its share of break_alpha, for this window's sample count and noise model (the GLS scan's null table by AR gain)"),
     ("break_p_value", ResultType::Float64, "", "p-value of the statistic from the shipped null table (0.001 to 0.5), averaged over the AR fit's uncertainty where the window is whitened"),
     ("break_tail_p_value", ResultType::Float64, "", "Bonferroni-adjusted p-value of the end test (Chow predictive test of the last samples up to the peak)"),
     ("break_head_p_value", ResultType::Float64, "", "Bonferroni-adjusted p-value of the start test (the end test read backwards: the window's first samples against the line after them); null where the tested window starts after a controller step or a pause"),

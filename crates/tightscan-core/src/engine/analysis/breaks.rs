@@ -4,7 +4,8 @@
 
 use crate::detectors::{least_squares_3, least_squares_line as line, least_squares_line_through};
 use crate::detectors::episode::{episode_critical_value, episode_predictive_p_value, episode_scan};
-use crate::detectors::breakpoint::{min_segment, sup_lr_critical_value, sup_lr_predictive_p_value, sup_lr_scan_profile, tail_test, whitening_sensitivity};
+use crate::detectors::breakpoint::{min_segment, tail_test, whitening_sensitivity};
+use crate::detectors::gls_breakpoint::{gls_critical_value, gls_predictive_p_value, gls_sup_lr_scan, gls_whitening_sensitivity};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
 use crate::engine::traces::BreakTrace;
@@ -39,8 +40,13 @@ impl Detector {
         // fault) the end test claimed 11 of the 571 such whole windows at p ~ 1e-4 (its share of
         // alpha is 4e-4), against 5 claims in the 2,500 windows the scan decides.
         let mut profile = s.trace.is_some().then(Vec::new);
-        let scan = sup_lr_scan_profile(&wx[..nw], &wy[..nw], min_segment(nw), &mut s.prefix, profile.as_mut())?;
-        let critical_value = sup_lr_critical_value(nw, scan_alpha).ok()?;
+        // The scan is the GLS break regression (`detectors::gls_breakpoint`): its step and step
+        // x angle whitened as the line is, from the weighted angle before whitening.
+        let phi_sum: f64 = s.noise.coefficients.iter().sum();
+        s.restarts.clear();
+        s.restarts.extend((0..n.saturating_sub(1)).filter(|&k| s.index[k + 1] > s.index[k] + 1).map(|k| k + 1));
+        let scan = gls_sup_lr_scan(&wx[..nw], &wy[..nw], s.weighted_x.get(..n)?, &s.noise.coefficients, &s.restarts, min_segment(nw), &mut s.gls_scratch, profile.as_mut())?;
+        let critical_value = gls_critical_value(nw, phi_sum, scan_alpha);
         let (x, y) = (&s.x[..n], &s.y[..n]);
         let split = scan.split + lag;
         let xs = &s.xs[..n];
@@ -62,8 +68,8 @@ impl Detector {
         // uncertain, the scan is judged by its p-value averaged over it
         // (`sup_lr_predictive_p_value`), with the statistic growing as that variance to the
         // power kappa (`scan_sensitivity`); for white noise by the table's critical value.
-        let se = s.noise.gain_log_se * scan_sensitivity(nw, lag1);
-        let p_value = sup_lr_predictive_p_value(nw, scan.statistic, se);
+        let se = s.noise.gain_log_se * scan_sensitivity(nw, lag1, gls_whitening_sensitivity);
+        let p_value = gls_predictive_p_value(nw, phi_sum, scan.statistic, se);
         let significant = if se > 0.0 { p_value <= scan_alpha } else { scan.statistic > critical_value };
         let scan_alarm = significant
             && (beyond_step(scan_jump) || beyond_encoder_artefact(scan.statistic, critical_value, || slope_change_lr(&wx[..nw], &wy[..nw], scan.split)));
@@ -72,6 +78,9 @@ impl Detector {
         // shares, as an intermittent friction fault leaves (`detectors::episode`). Not where the
         // tool restarts: after a pause, or from a window that starts after a controller step.
         let episode_alpha = self.break_alpha * episode_fraction;
+        // The episode scan's statistic is of the two-line kind: the two-line scan's sensitivity
+        // (its own is 0-0.2 lower, so this is conservative for it).
+        let episode_se = s.noise.gain_log_se * scan_sensitivity(nw, lag1, whitening_sensitivity);
         let episode = if episode_fraction > 0.0 {
             s.transients.clear();
             if !s.starts_at_level {
@@ -84,8 +93,8 @@ impl Detector {
         };
         let episode = episode.and_then(|scan| {
             let critical = episode_critical_value(nw, episode_alpha).ok()?;
-            let p_value = episode_predictive_p_value(nw, scan.statistic, se);
-            let significant = if se > 0.0 { p_value <= episode_alpha } else { scan.statistic > critical };
+            let p_value = episode_predictive_p_value(nw, scan.statistic, episode_se);
+            let significant = if episode_se > 0.0 { p_value <= episode_alpha } else { scan.statistic > critical };
             // Its level in torque units, recorded samples against the line through those
             // outside it; the encoder-step check as for a break (no slope to tell an encoder
             // offset by: only the multiple of the critical value).
@@ -182,7 +191,7 @@ impl Detector {
                 angle: split_angles,
                 lr,
                 critical_value,
-                decision_value: if se > 0.0 { predictive_critical_value(nw, scan_alpha, se) } else { critical_value },
+                decision_value: if se > 0.0 { predictive_critical_value(nw, phi_sum, scan_alpha, se) } else { critical_value },
                 significant,
                 scan_alarm,
                 tail_alarm,
@@ -219,17 +228,17 @@ impl Detector {
     }
 }
 
-/// The sup-LR statistic whose predictive p-value ([`sup_lr_predictive_p_value`], non-increasing
+/// The sup-LR statistic whose predictive p-value ([`gls_predictive_p_value`], non-increasing
 /// in the statistic) is `alpha`, by bisection: the level the scan's profile must pass where the
 /// noise model's uncertainty widens the test.
-fn predictive_critical_value(n: usize, alpha: f64, gain_log_se: f64) -> f64 {
+fn predictive_critical_value(n: usize, phi_sum: f64, alpha: f64, gain_log_se: f64) -> f64 {
     let (mut lo, mut hi) = (0.0_f64, 1.0_f64);
-    while sup_lr_predictive_p_value(n, hi, gain_log_se) > alpha && hi < 1e6 {
+    while gls_predictive_p_value(n, phi_sum, hi, gain_log_se) > alpha && hi < 1e6 {
         (lo, hi) = (hi, 2.0 * hi);
     }
     for _ in 0..100 {
         let mid = 0.5 * (lo + hi);
-        if sup_lr_predictive_p_value(n, mid, gain_log_se) > alpha {
+        if gls_predictive_p_value(n, phi_sum, mid, gain_log_se) > alpha {
             lo = mid;
         } else {
             hi = mid;
@@ -433,11 +442,11 @@ const NEAR_UNIT_ROOT_WINDOW: usize = 250;
 /// 30-80 whitened samples) the measured kappa alone claimed 4.7 %; with this exception 1.0 %
 /// (the pure-noise Monte Carlo behind the table cannot show this: it has no shape). The
 /// episode scan's own kappa is 0-0.2 lower than the scan's, so the scan's is conservative for it.
-fn scan_sensitivity(nw: usize, lag1: f64) -> f64 {
+fn scan_sensitivity(nw: usize, lag1: f64, measured: fn(usize, f64) -> f64) -> f64 {
     if lag1 >= NEAR_UNIT_ROOT_LAG1 && nw < NEAR_UNIT_ROOT_WINDOW {
         1.0
     } else {
-        whitening_sensitivity(nw, lag1)
+        measured(nw, lag1)
     }
 }
 

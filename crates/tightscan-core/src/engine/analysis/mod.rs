@@ -84,6 +84,11 @@ pub(super) struct Scratch {
     /// whitened samples are of the weighted ones.
     weights: Vec<f64>,
     weighted: Vec<f64>,
+    /// `xs` weighted, before whitening: the GLS break scan whitens its step regressors from it.
+    weighted_x: Vec<f64>,
+    gls_scratch: crate::detectors::gls_breakpoint::GlsScratch,
+    /// Whitened samples of the window that follow a stop left out (the GLS scan's restarts).
+    restarts: Vec<usize>,
     /// The snug angle in window coordinates (negative: before the window), where the clamp
     /// force starts: a friction drift's torque grows with the force times the drift.
     snug_x: f64,
@@ -244,8 +249,8 @@ impl Scratch {
         self.lag = self.noise.coefficients.len();
         self.noise_weights(t0);
         let phi = &self.noise.coefficients;
-        weigh(&self.xs, &self.weights, &mut self.weighted);
-        whiten(&self.weighted, phi, &mut self.wx);
+        weigh(&self.xs, &self.weights, &mut self.weighted_x);
+        whiten(&self.weighted_x, phi, &mut self.wx);
         weigh(&self.y, &self.weights, &mut self.weighted);
         whiten(&self.weighted, phi, &mut self.wy);
         self.wf.clear();

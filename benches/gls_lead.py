@@ -18,7 +18,9 @@ little); a measurement of the lead, not of a detector.
 
 Measured (2026-11-26, 600 clean + 600 faulty curves, independent generator): AR(1) 0.85 two
 lines 63.9 / 26.8 %, GLS 83.7 / 61.1 %; AR(1) 0.5 93.5 / 75.5 -> 94.2 / 78.8 %; white noise
-identical (at phi 0 the GLS regression is the two-line fit).
+identical (at phi 0 the GLS regression is the two-line fit). The engine runs the GLS scan
+since the fourteenth session (``detectors/gls_breakpoint.rs``); its numpy form here is
+``bench_cusum.sup_lr``.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import tightscan
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benches"))
+import bench_cusum  # noqa: E402
 import detection_quality as dq  # noqa: E402
 
 
@@ -49,8 +52,7 @@ def scans(angle: np.ndarray, torque: np.ndarray, phi: float) -> tuple[float, flo
     """sup-LR of the two-line scan and of the GLS break regression over every split with at
     least 5 % (and 10) whitened samples each side; NaN for a window too short."""
     x, y = angle - angle.mean(), torque - torque.mean()
-    gain = 1.0 - phi
-    wy, wx, x_at = y[1:] - phi * y[:-1], x[1:] - phi * x[:-1], x[1:]
+    wy, wx = y[1:] - phi * y[:-1], x[1:] - phi * x[:-1]
     n = len(wy)
     trim = max(int(np.ceil(0.05 * n)), 10)
     if n < 2 * trim + 2:
@@ -66,25 +68,10 @@ def scans(angle: np.ndarray, torque: np.ndarray, phi: float) -> tuple[float, flo
     rss0 = float(_line_rss(np.array(float(n)), p1[n], p2[n], pt[n], pt2[n], pq[n]))
     with np.errstate(divide="ignore"):
         two_lines = float(np.max(n * np.log(rss0 / (left + right))))
-    # GLS: columns 1, wx, the whitened step (gain after k, 1 at k) and the whitened step x angle
-    # (wx after k, the angle itself at k); normal equations from the same prefix sums.
-    after = ks + 1
-    m = (n - after).astype(float)
-    r1, r2, rt, rq = p1[n] - p1[after], p2[n] - p2[after], pt[n] - pt[after], pq[n] - pq[after]
-    xk, wk, yk = x_at[ks], wx[ks], wy[ks]
-    gram = np.empty((len(ks), 4, 4))
-    gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1] = n, p1[n], p2[n]
-    gram[:, 0, 2], gram[:, 0, 3] = gain * m + 1.0, r1 + xk
-    gram[:, 1, 2], gram[:, 1, 3] = gain * r1 + wk, r2 + wk * xk
-    gram[:, 2, 2], gram[:, 2, 3], gram[:, 3, 3] = gain * gain * m + 1.0, gain * r1 + xk, r2 + xk * xk
-    for i in range(4):
-        for j in range(i):
-            gram[:, i, j] = gram[:, j, i]
-    gram += np.eye(4)[None] * 1e-12 * np.trace(gram, axis1=1, axis2=2)[:, None, None]
-    rhs = np.stack([np.full(len(ks), pt[n]), np.full(len(ks), pq[n]), gain * rt + yk, rq + xk * yk], axis=1)
-    theta = np.linalg.solve(gram, rhs[..., None])[..., 0]
-    rss = pt2[n] - np.sum(theta * rhs, axis=1)
-    gls = float(np.max(n * np.log(rss0 / np.maximum(rss, 1e-300 * rss0))))
+    # GLS: the engine's scan as numpy (bench_cusum.sup_lr: columns 1, wx, the whitened step and
+    # the whitened step x angle, normal equations from prefix sums).
+    scan = bench_cusum.sup_lr(x, y, phi)
+    gls = scan[0] if scan is not None else float("nan")
     return two_lines, gls
 
 
@@ -119,7 +106,7 @@ def main() -> int:
     large = reached & (truth.true_magnitude.abs() >= 0.15).to_numpy()  # type: ignore[attr-defined]
     small = reached & (truth.true_magnitude.abs() < 0.15).to_numpy()  # type: ignore[attr-defined]
     print(f"{args.generator}, {args.cell}: {args.n} clean / {args.n} faulty curves, {int(large.sum())} large and {int(small.sum())} small changes reached")
-    for name, j in (("two lines (as the engine)", 0), ("GLS break regression", 1)):
+    for name, j in (("two lines (engine before)", 0), ("GLS (the engine now)", 1)):
         hit = faulty[:, j] > threshold[j]
         print(f"  {name:26s} threshold {threshold[j]:7.2f}: recall 15-45 % {100 * hit[large].mean():5.1f}, 3-15 % {100 * hit[small].mean():5.1f}")
     rule = faulty_results.change_detected.fillna(False).astype(bool).to_numpy()  # type: ignore[attr-defined]

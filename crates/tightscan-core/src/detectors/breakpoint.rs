@@ -490,7 +490,13 @@ pub(crate) fn table_critical_value(table: &[[f64; 8]; 8], n: usize, alpha: f64) 
 
 /// p-value of `statistic` for n samples from `table` (as [`sup_lr_p_value`]).
 pub(crate) fn table_p_value(table: &[[f64; 8]; 8], n: usize, statistic: f64) -> f64 {
-    let quantiles: Vec<f64> = (0..TABLE_ALPHA.len()).map(|j| interpolate(table, n, |row| row[j])).collect();
+    let quantiles: [f64; 8] = std::array::from_fn(|j| interpolate(table, n, |row| row[j]));
+    quantiles_p_value(&quantiles, statistic)
+}
+
+/// p-value of `statistic` from its null quantiles (columns [`TABLE_ALPHA`]): linear in ln alpha
+/// between them, clamped to [0.001, 0.5].
+pub(crate) fn quantiles_p_value(quantiles: &[f64; 8], statistic: f64) -> f64 {
     if statistic <= quantiles[0] {
         return TABLE_ALPHA[0];
     }
@@ -504,7 +510,9 @@ pub(crate) fn table_p_value(table: &[[f64; 8]; 8], n: usize, statistic: f64) -> 
     TABLE_ALPHA[TABLE_ALPHA.len() - 1]
 }
 
-fn interpolate_alpha(row: &[f64; 8], alpha: f64) -> f64 {
+/// The quantile at `alpha` of a row of null quantiles (columns [`TABLE_ALPHA`]), linear in
+/// ln alpha (the last column below the table).
+pub(crate) fn interpolate_alpha(row: &[f64; 8], alpha: f64) -> f64 {
     for j in 1..TABLE_ALPHA.len() {
         if alpha >= TABLE_ALPHA[j] {
             let (la, lb) = (TABLE_ALPHA[j - 1].ln(), TABLE_ALPHA[j].ln());
@@ -515,7 +523,8 @@ fn interpolate_alpha(row: &[f64; 8], alpha: f64) -> f64 {
     row[TABLE_ALPHA.len() - 1]
 }
 
-fn interpolate(table: &[[f64; 8]; 8], n: usize, value: impl Fn(&[f64; 8]) -> f64) -> f64 {
+/// `value` of a table's row for n samples, interpolated linearly in ln n (clamped to [`TABLE_N`]).
+pub(crate) fn interpolate(table: &[[f64; 8]; 8], n: usize, value: impl Fn(&[f64; 8]) -> f64) -> f64 {
     let n = (n as f64).clamp(TABLE_N[0] as f64, TABLE_N[TABLE_N.len() - 1] as f64);
     for i in 1..TABLE_N.len() {
         if n <= TABLE_N[i] as f64 {

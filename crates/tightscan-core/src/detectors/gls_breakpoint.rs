@@ -32,7 +32,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 
-use crate::detectors::breakpoint::{BreakScan, TABLE_ALPHA, TABLE_N, SUP_LR_QUANTILES};
+use crate::detectors::breakpoint::{interpolate, interpolate_alpha, quantiles_p_value, BreakScan, SUP_LR_QUANTILES, TABLE_ALPHA};
 
 /// Scratch of [`gls_sup_lr_scan`]: suffix sums of (1, wx, wy, wx^2, wx wy) over the rows kept,
 /// and which rows are kept.
@@ -172,7 +172,7 @@ pub const GLS_PHI: [f64; 8] = [0.0, 0.3, 0.5, 0.7, 0.85, 0.9, 0.95, 0.99];
 
 /// (1 - alpha) quantiles of the GLS sup-LR under no change, AR(1) noise of coefficient
 /// [`GLS_PHI`]`[j + 1]` whitened with it, samples evenly spaced, segments of at least
-/// `min_segment(n)`: `[phi][n]` rows follow [`TABLE_N`], columns [`TABLE_ALPHA`]. Made by
+/// `min_segment(n)`: `[phi][n]` rows follow [`TABLE_N`](crate::detectors::breakpoint::TABLE_N), columns [`TABLE_ALPHA`]. Made by
 /// `simulate_gls_quantiles(n, phi, 100_000, 20261127 + n)` (the ignored test
 /// `regenerate_gls_table` prints it).
 pub static GLS_SUP_LR_QUANTILES: [[[f64; 8]; 8]; 7] = [
@@ -250,7 +250,7 @@ pub static GLS_SUP_LR_QUANTILES: [[[f64; 8]; 8]; 7] = [
 
 /// How the GLS statistic's null quantiles grow with a whitening error, as
 /// [`crate::detectors::breakpoint::WHITENING_SENSITIVITY`] is for the two-line scan (rows
-/// [`TABLE_N`], columns [`crate::detectors::breakpoint::SENSITIVITY_LAG1`], the 0.995
+/// [`TABLE_N`](crate::detectors::breakpoint::TABLE_N), columns [`crate::detectors::breakpoint::SENSITIVITY_LAG1`], the 0.995
 /// quantile, log-gain error +0.5, AR(1) windows whitened with the wrong coefficient and the
 /// GLS regressors built with it; 30,000 windows per cell with common random numbers, the
 /// ignored test `gls_whitening_sensitivity_experiment`). Lower than the two-line scan's under
@@ -308,47 +308,15 @@ pub fn gls_quantiles(n: usize, phi_sum: f64) -> [f64; 8] {
     let j = (1..GLS_PHI.len()).find(|&j| phi <= GLS_PHI[j]).unwrap_or(GLS_PHI.len() - 1);
     let t = (phi - GLS_PHI[j - 1]) / (GLS_PHI[j] - GLS_PHI[j - 1]);
     let table = |j: usize| if j == 0 { &SUP_LR_QUANTILES } else { &GLS_SUP_LR_QUANTILES[j - 1] };
-    let (a, b) = (by_n(table(j - 1), n), by_n(table(j), n));
-    std::array::from_fn(|c| a[c] + t * (b[c] - a[c]))
+    std::array::from_fn(|c| {
+        let (a, b) = (interpolate(table(j - 1), n, |row| row[c]), interpolate(table(j), n, |row| row[c]));
+        a + t * (b - a)
+    })
 }
 
-/// A table's row for n samples, interpolated linearly in ln n (clamped to [`TABLE_N`]).
-fn by_n(table: &[[f64; 8]; 8], n: usize) -> [f64; 8] {
-    let n = (n as f64).clamp(TABLE_N[0] as f64, TABLE_N[TABLE_N.len() - 1] as f64);
-    let i = (1..TABLE_N.len()).find(|&i| n <= TABLE_N[i] as f64).unwrap_or(TABLE_N.len() - 1);
-    let (la, lb) = ((TABLE_N[i - 1] as f64).ln(), (TABLE_N[i] as f64).ln());
-    let u = (n.ln() - la) / (lb - la);
-    std::array::from_fn(|c| table[i - 1][c] + u * (table[i][c] - table[i - 1][c]))
-}
-
-/// p-value of `statistic` from its null quantiles (columns [`TABLE_ALPHA`]): linear in ln alpha
-/// between them, clamped to [0.001, 0.5].
-fn quantiles_p_value(q: &[f64; 8], statistic: f64) -> f64 {
-    if statistic <= q[0] {
-        return TABLE_ALPHA[0];
-    }
-    for j in 1..TABLE_ALPHA.len() {
-        if statistic <= q[j] {
-            let t = (statistic - q[j - 1]) / (q[j] - q[j - 1]);
-            let (la, lb) = (TABLE_ALPHA[j - 1].ln(), TABLE_ALPHA[j].ln());
-            return (la + t * (lb - la)).exp();
-        }
-    }
-    TABLE_ALPHA[TABLE_ALPHA.len() - 1]
-}
-
-/// Critical value of the GLS scan at `alpha` (within [`TABLE_ALPHA`]), linear in ln alpha.
+/// Critical value of the GLS scan at `alpha` (clamped to [`TABLE_ALPHA`]), linear in ln alpha.
 pub fn gls_critical_value(n: usize, phi_sum: f64, alpha: f64) -> f64 {
-    let q = gls_quantiles(n, phi_sum);
-    let alpha = alpha.clamp(TABLE_ALPHA[TABLE_ALPHA.len() - 1], TABLE_ALPHA[0]);
-    for j in 1..TABLE_ALPHA.len() {
-        if alpha >= TABLE_ALPHA[j] {
-            let (la, lb) = (TABLE_ALPHA[j - 1].ln(), TABLE_ALPHA[j].ln());
-            let t = (alpha.ln() - la) / (lb - la);
-            return q[j - 1] + t * (q[j] - q[j - 1]);
-        }
-    }
-    q[TABLE_ALPHA.len() - 1]
+    interpolate_alpha(&gls_quantiles(n, phi_sum), alpha.clamp(TABLE_ALPHA[TABLE_ALPHA.len() - 1], TABLE_ALPHA[0]))
 }
 
 /// p-value of a GLS scan statistic averaged over the whitening's uncertainty, as
@@ -366,7 +334,7 @@ pub fn gls_predictive_p_value(n: usize, phi_sum: f64, statistic: f64, gain_log_s
 #[allow(clippy::unwrap_used, clippy::expect_used)]
 mod tests {
     use super::*;
-    use crate::detectors::breakpoint::{min_segment, sup_lr_scan};
+    use crate::detectors::breakpoint::{min_segment, sup_lr_scan, TABLE_N};
 
     /// AR(p) noise, whitened x and y, the raw x (p samples of past) for a window of n.
     fn window(n: usize, phi: &[f64], step_at: Option<(usize, f64)>, seed: u64) -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {

@@ -154,10 +154,10 @@ const NEAR_UNIT_ROOT: f64 = 0.99;
 /// friction change's kink shows more about a longer quadratic: with 128-sample blocks
 /// everywhere the built-in simulator's white-noise 3-15 % changes were found in 94.5 % instead
 /// of 99.3 %. Under colour this strong the noise, not the kink, dominates a block. Measured
-/// (`benches/detection_quality.py` cells, 1,000 clean and 1,000 faulty curves, independent
-/// generator under AR(1) 0.85): 15-45 / 3-15 % changes found 80.2 / 43.6 % -> 83.8 / 54.9 %,
-/// false alarms 0.4 -> 0.5 %; the built-in simulator's 92.3 / 83.8 -> 95.4 / 87.4 %, false
-/// alarms 0.8 -> 0.7 %. Below 0.7 it changes nothing measurable (the AR(1) 0.5 cells).
+/// with [`STRONG_COLOUR_AGREEMENT`] (`benches/detection_quality.py --n 1500`, AR(1) 0.85):
+/// 15-45 / 3-15 % changes found 79.5 / 44.6 % -> 83.8 / 53.1 % on the independent generator
+/// (false alarms 0.47 % both), 93.6 / 83.3 -> 96.1 / 89.2 % on the built-in simulator (0.67 %
+/// both). Below 0.7 it changes nothing measurable (the AR(1) 0.5 cells).
 const STRONG_COLOUR: f64 = 0.7;
 /// How much higher than the 64-sample fit's the longer blocks' lag-1 autocorrelation may come
 /// out for their fit to be used ([`STRONG_COLOUR`]). On genuinely coloured noise the two agree
@@ -254,7 +254,10 @@ impl Scratch {
         let block = if on_rundown { long_block } else { NOISE_BLOCK };
         self.noise = estimate_noise_in(&self.noise_t, &self.noise_y, fitted, block, &mut self.noise_scratch);
         let lag1 = self.noise.lag1_autocorrelation();
-        if lag1 > if on_rundown { NEAR_UNIT_ROOT } else { STRONG_COLOUR } {
+        // (refit above this lag-1, how far above the first fit's the longer one may come out:
+        // on the rundown only below it)
+        let (refit_above, may_rise) = if on_rundown { (NEAR_UNIT_ROOT, None) } else { (STRONG_COLOUR, Some(STRONG_COLOUR_AGREEMENT)) };
+        if lag1 > refit_above {
             // Strong colour: the 64-sample blocks' estimate spreads widely ([`STRONG_COLOUR`]),
             // and blocks twice as long pin it. On the rundown alone the blocks are already long
             // and only the unit-root bound is at stake: near phi = 1 the local quadratics of one
@@ -265,7 +268,8 @@ impl Scratch {
             let longer = estimate_noise_in(&self.noise_t, &self.noise_y, fitted, 2 * block, &mut self.noise_scratch);
             // A white fit of the longer blocks is no answer: it is what the solve returns when
             // too few blocks remain (a slow channel), not evidence against correlation.
-            let agrees = if on_rundown { longer.lag1_autocorrelation() < lag1 } else { longer.lag1_autocorrelation() <= lag1 + STRONG_COLOUR_AGREEMENT };
+            let longer_lag1 = longer.lag1_autocorrelation();
+            let agrees = may_rise.map_or(longer_lag1 < lag1, |rise| longer_lag1 <= lag1 + rise);
             if !longer.coefficients.is_empty() && agrees {
                 self.noise = longer;
             }

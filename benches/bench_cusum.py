@@ -306,11 +306,17 @@ def sup_lr(x: np.ndarray, y: np.ndarray, phi: float = 0.0) -> tuple[float, int] 
         for j in range(i):
             gram[:, i, j] = gram[:, j, i]
     rhs = np.stack([np.full(ks.size, pt[n]), np.full(ks.size, pq[n]), gain * rt + yk, rq + xk * yk], axis=1)
+    # A split whose normal equations are singular (the recorded angle standing still over the
+    # step's side, as in a CSDT pause) explains nothing beyond the line, as in the engine (its
+    # 2 x 2 step block must be invertible there, else the split's RSS is the line's). numpy's
+    # batched solve raises for the whole stack on one singular matrix, so those are set aside.
+    singular = ~(np.abs(np.linalg.det(gram)) > 0.0)
+    gram[singular] = np.eye(4)
     with np.errstate(divide="ignore", invalid="ignore"):
         theta = np.linalg.solve(gram, rhs[..., None])[..., 0]
         rss = pt2[n] - np.sum(theta * rhs, axis=1)
         lr = n * np.log(rss0 / np.maximum(rss, 1e-300 * rss0))
-    lr = np.where(np.isfinite(lr), lr, -np.inf)
+    lr = np.where(singular, 0.0, np.where(np.isfinite(lr), lr, -np.inf))
     j = int(np.argmax(lr))
     return float(lr[j]), int(ks[j])
 

@@ -138,6 +138,10 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
     let mut positions = [0usize; EPISODE_GRID + 1];
     positions.iter_mut().take(count).enumerate().for_each(|(i, p)| *p = position(i));
     let positions = &positions[..count];
+    // The same positions as floats (exact: far below 2^53), so that an episode's length is a
+    // subtraction, not an integer conversion per episode.
+    let mut positions_f = [0.0f64; EPISODE_GRID + 1];
+    positions_f.iter_mut().zip(positions).for_each(|(f, &p)| *f = p as f64);
     scratch.clear();
     scratch.push((0.0, 0.0));
     let mut rss0 = 0.0;
@@ -193,7 +197,8 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
         // The best stretch as (its reduction's numerator and denominator, grid index of k1, of
         // k2): compared by cross-multiplying (both denominators positive), no division per
         // stretch.
-        let mut best: Option<(f64, f64, usize, usize)> = None;
+        let mut best: Option<(usize, usize)> = None;
+        let (mut best_numerator, mut best_norm) = (0.0, 1.0);
         for (i, &k1) in positions.iter().enumerate() {
             if k1 < margin {
                 continue;
@@ -207,32 +212,29 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
             for t in taken[..pass].iter().filter(|t| t.k1 > k1) {
                 last = last.min(t.k1);
             }
+            // No episode within its own length of a transient g: `[k1, k2)` is out when
+            // g >= 2 k1 - k2 and 2 k2 >= g + k1. Both hold from some k2 on and stay true as k2
+            // grows, so the admissible ends from k1 are those below the smallest such k2 over
+            // the transients: a bound per k1, not a test per episode (which was most of the
+            // scan's cost on windows with a pause).
+            let below = transients.iter().map(|&g| (2 * k1).saturating_sub(g).max((g + k1).div_ceil(2))).min().unwrap_or(usize::MAX);
             // Grid indices of the admissible ends: from the first at least MIN_EPISODE on to the
-            // last within `last` (positions increase).
+            // last within `last` and below `below` (positions increase).
             let from = i + 1 + positions[i + 1..].partition_point(|&k2| k2 < k1 + MIN_EPISODE);
-            let to = i + 1 + positions[i + 1..].partition_point(|&k2| k2 <= last);
-            let (cx, ce) = sums[i];
-            let mut scan = |admit: &dyn Fn(usize) -> bool| {
-                for j in from..to {
-                    let k2 = positions[j];
-                    if !admit(k2) {
-                        continue;
-                    }
-                    let s1 = (k2 - k1) as f64;
-                    let (norm, along) = project(s1, sums[j].0 - cx, sums[j].1 - ce);
-                    let numerator = along * along;
-                    if norm > 1e-9 * s1 && best.is_none_or(|(bn, bd, ..)| numerator * bd > bn * norm) {
-                        best = Some((numerator, norm, i, j));
-                    }
+            // (`to` below `from`: nothing admissible from k1.)
+            let to = (i + 1 + positions[i + 1..].partition_point(|&k2| k2 <= last && k2 < below)).max(from);
+            let ((cx, ce), k1_f) = (sums[i], positions_f[i]);
+            for (j, (&k2_f, &(sx, se))) in positions_f[from..to].iter().zip(&sums[from..to]).enumerate() {
+                let s1 = k2_f - k1_f;
+                let (norm, along) = project(s1, sx - cx, se - ce);
+                let numerator = along * along;
+                if norm > 1e-9 * s1 && (best.is_none() || numerator * best_norm > best_numerator * norm) {
+                    best = Some((i, from + j));
+                    (best_numerator, best_norm) = (numerator, norm);
                 }
-            };
-            if transients.is_empty() {
-                scan(&|_| true);
-            } else {
-                scan(&|k2| !transients.iter().any(|&g| g + (k2 - k1) >= k1 && g <= k2 + (k2 - k1)));
             }
         }
-        let Some((_, _, i, j)) = best else { break };
+        let Some((i, j)) = best else { break };
         let (k1, k2) = (positions[i], positions[j]);
         let (s1, sxe) = ((k2 - k1) as f64, sums[j].0 - sums[i].0);
         let (norm, along) = project(s1, sxe, sums[j].1 - sums[i].1);
@@ -381,6 +383,41 @@ mod tests {
         assert_eq!((s.start, s.end), (30, 36));
         assert!((s.statistic - n as f64 * (rss0 / best.0).ln()).abs() < 1e-6 * s.statistic, "{} vs {}", s.statistic, n as f64 * (rss0 / best.0).ln());
         assert!((s.level - 0.8).abs() < 0.25, "{s:?}");
+    }
+
+    /// With transients, the scan's episode is the least-squares best of those that keep their
+    /// own length away from every transient (`g + m < k1` or `g > k2 + m`, m = k2 - k1), by
+    /// brute force over every admissible episode, on noise alone (the best lands anywhere,
+    /// often against a transient) and with a pulse between two transients.
+    #[test]
+    fn transients_keep_episodes_their_own_length_away_brute_force() {
+        let n = 80;
+        let x = evenly_spaced(n);
+        let (outside, margin) = (min_segment(n), min_segment(n) / 2);
+        for seed in 0..40u64 {
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(100 + seed);
+            let pulse = seed % 2 == 0;
+            let y: Vec<f64> = (0..n).map(|i| 0.3 * x[i] + if pulse && (40..46).contains(&i) { 0.9 } else { 0.0 } + 0.2 * normal(&mut rng)).collect();
+            let transients: &[usize] = if seed % 4 < 2 { &[25, 58] } else { &[0, 33] };
+            let s = episode_scan(&x, &y, transients, &mut Vec::new()).unwrap();
+            let mut best = (f64::INFINITY, 0, 0);
+            for k1 in margin..n {
+                for k2 in k1 + MIN_EPISODE..=n - margin {
+                    let m = k2 - k1;
+                    if m + outside > n || transients.iter().any(|&g| g + m >= k1 && g <= k2 + m) {
+                        continue;
+                    }
+                    let (_, _, rss) = crate::detectors::least_squares_3((0..n).map(|i| ([1.0, x[i], if (k1..k2).contains(&i) { 1.0 } else { 0.0 }], y[i]))).unwrap();
+                    if rss < best.0 {
+                        best = (rss, k1, k2);
+                    }
+                }
+            }
+            assert_eq!((s.start, s.end), (best.1, best.2), "seed {seed}");
+            if pulse {
+                assert_eq!((s.start, s.end), (40, 46), "seed {seed}");
+            }
+        }
     }
 
     /// The second stretch the greedy search takes is the least-squares best: with the first one

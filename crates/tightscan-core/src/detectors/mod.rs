@@ -52,8 +52,44 @@ where
         xtx += row * row.transpose();
         xty += row * y;
     }
+    least_squares_3_from_sums(xtx, xty, rows)
+}
+
+/// [`least_squares_3`] from its sums of products X'X and X'y, summed row by row as it sums them
+/// (so the result is the same to the last bit): for fits that share two of their regressors and
+/// their sums, as the curvature check's drift knots do.
+pub fn least_squares_3_from_sums<I>(xtx: nalgebra::Matrix3<f64>, xty: nalgebra::Vector3<f64>, rows: I) -> Option<(nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>, f64)>
+where
+    I: Iterator<Item = ([f64; 3], f64)>,
+{
     let inv = xtx.try_inverse()?;
     let beta = inv * xty;
     let rss: f64 = rows.map(|(x, y)| (y - beta[0] * x[0] - beta[1] * x[1] - beta[2] * x[2]).powi(2)).sum();
     (beta.iter().all(|b| b.is_finite()) && rss.is_finite()).then_some((beta, inv, rss))
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used)] // a failed expect is a failed test
+mod tests {
+    use super::{least_squares_3, least_squares_3_from_sums};
+
+    /// Sums of products taken separately, each row by row as `least_squares_3` takes them, give
+    /// the same fit to the last bit (the curvature check's drift knots rely on it; equality of
+    /// floats on purpose).
+    #[test]
+    fn the_fit_from_sums_is_the_fit_to_the_last_bit() {
+        let n = 500;
+        let a: Vec<f64> = (0..n).map(|i| 0.7 + (i as f64 * 0.37).sin() * 1e-3).collect();
+        let b: Vec<f64> = (0..n).map(|i| i as f64 * 0.013 - 2.0).collect();
+        let c: Vec<f64> = (0..n).map(|i| ((i as f64 - 180.0).max(0.0) * 0.01).powi(2)).collect();
+        let y: Vec<f64> = (0..n).map(|i| 1.0 + 0.5 * b[i] + 0.2 * c[i] + (i as f64 * 1.7).cos() * 0.03).collect();
+        let rows = || (0..n).map(|i| ([a[i], b[i], c[i]], y[i]));
+        let direct = least_squares_3(rows()).expect("fits");
+        let sum = |f: &dyn Fn(usize) -> f64| (0..n).fold(0.0, |s, i| s + f(i));
+        let (aa, ab, ac, bb, bc, cc) = (sum(&|i| a[i] * a[i]), sum(&|i| a[i] * b[i]), sum(&|i| a[i] * c[i]), sum(&|i| b[i] * b[i]), sum(&|i| b[i] * c[i]), sum(&|i| c[i] * c[i]));
+        let xtx = nalgebra::Matrix3::new(aa, ab, ac, ab, bb, bc, ac, bc, cc);
+        let xty = nalgebra::Vector3::new(sum(&|i| a[i] * y[i]), sum(&|i| b[i] * y[i]), sum(&|i| c[i] * y[i]));
+        let from_sums = least_squares_3_from_sums(xtx, xty, rows()).expect("fits");
+        assert_eq!(direct, from_sums);
+    }
 }

@@ -2,7 +2,7 @@
 //! test of the last samples up to the peak, with the encoder-step check that keeps angle
 //! quantisation from passing for a friction change.
 
-use crate::detectors::{least_squares_3, least_squares_line as line, least_squares_line_through};
+use crate::detectors::{least_squares_3, least_squares_3_from_sums, least_squares_line as line, least_squares_line_through};
 use crate::detectors::episode::{episode_critical_value, episode_predictive_p_value, episode_scan};
 use crate::detectors::breakpoint::{min_segment, tail_test, whitening_sensitivity};
 use crate::detectors::gls_breakpoint::{gls_critical_value, gls_predictive_p_value, gls_sup_lr_scan, gls_whitening_sensitivity};
@@ -395,20 +395,38 @@ fn curvature(xs: &[f64], weights: &[f64], wx: &[f64], wy: &[f64], phi: &[f64], s
     let t = beta[2] / se;
     let p = 2.0 * StudentsT::new(0.0, 1.0, df).ok()?.sf(t.abs());
     let (first, last) = (xs.first().copied().unwrap_or(0.0), xs.last().copied().unwrap_or(0.0));
+    // The drift fits share the constant and the angle with each other: their sums of products
+    // are summed once, in the order `least_squares_3` sums them, and only the ramp's are summed
+    // per knot (the same fits to the last bit, for a third of the work).
+    let (mut s_gg, mut s_gx, mut s_xx, mut s_gy, mut s_xy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for k in 0..n {
+        s_gg += gain * gain;
+        s_gx += gain * wx[k];
+        s_xx += wx[k] * wx[k];
+        s_gy += gain * wy[k];
+        s_xy += wx[k] * wy[k];
+    }
+    let mut ramps = Vec::with_capacity(xs.len());
     let mut rss_drift = f64::INFINITY;
     for fraction in DRIFT_KNOTS {
         let knot = first + fraction * (last - first);
-        let ramps: Vec<f64> = xs
-            .iter()
-            .enumerate()
-            .map(|(i, x)| {
-                let force = if snug_x.is_finite() && snug_x < *x { x - snug_x } else { x - knot };
-                (x - knot).max(0.0) * force / (span * span) * weights.get(i).copied().unwrap_or(1.0)
-            })
-            .collect();
+        ramps.clear();
+        ramps.extend(xs.iter().enumerate().map(|(i, x)| {
+            let force = if snug_x.is_finite() && snug_x < *x { x - snug_x } else { x - knot };
+            (x - knot).max(0.0) * force / (span * span) * weights.get(i).copied().unwrap_or(1.0)
+        }));
         crate::detectors::noise::whiten(&ramps, phi, scratch);
         let Some(wr) = scratch.get(lag..lag + n) else { continue };
-        if let Some((_, _, rss_k)) = least_squares_3((0..n).map(|k| ([gain, wx[k], wr[k]], wy[k]))) {
+        let (mut s_gr, mut s_xr, mut s_rr, mut s_ry) = (0.0, 0.0, 0.0, 0.0);
+        for k in 0..n {
+            s_gr += gain * wr[k];
+            s_xr += wx[k] * wr[k];
+            s_rr += wr[k] * wr[k];
+            s_ry += wr[k] * wy[k];
+        }
+        let xtx = nalgebra::Matrix3::new(s_gg, s_gx, s_gr, s_gx, s_xx, s_xr, s_gr, s_xr, s_rr);
+        let xty = nalgebra::Vector3::new(s_gy, s_xy, s_ry);
+        if let Some((_, _, rss_k)) = least_squares_3_from_sums(xtx, xty, (0..n).map(|k| ([gain, wx[k], wr[k]], wy[k]))) {
             rss_drift = rss_drift.min(rss_k);
         }
     }

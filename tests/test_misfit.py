@@ -107,6 +107,26 @@ def test_a_late_relaxation_dip_ends_the_tested_window() -> None:
     assert all(e < w for e, w in zip(ends, results["elastic_end_angle"].to_pylist()))
 
 
+def test_a_late_intermittent_friction_episode_is_tested_and_found() -> None:
+    # Friction 20 % lower for 3 deg, late in the window: the torque falls at once and jumps back
+    # at once. The two samples after the fall lie lower still (as noise puts them often), so
+    # the fall spans three samples and the jump back is, on average, faster than three times
+    # the elastic rate: the shape of a relaxation dip and wind-up by those two measures. The
+    # window used to end before it, and the change was left untested (3 of 8 missed 15-45 %
+    # changes of the built-in simulator's white-noise curves, 8 of 12 with noise growing with
+    # the torque). One sample carries the fall and one the return: an episode, not a relaxation.
+    curves = []
+    for seed in range(10):
+        angle, torque, time = _curve(seed=seed)
+        drop = 0.2 * RATE * (angle - 40.0)
+        torque = torque - np.select([np.arange(600) == 560, np.arange(600) == 561, (np.arange(600) >= 562) & (np.arange(600) < 572)],
+                                    [drop, 1.05 * drop, 1.1 * drop], 0.0)
+        curves.append((angle, torque, time))
+    results = tightscan.detect_batch(_table(curves))
+    assert all(e > 143.0 for e in results["tested_end_angle"].to_pylist())
+    assert results["change_detected"].to_pylist() == [True] * 10
+
+
 def test_a_late_unsampled_pause_ends_the_tested_window() -> None:
     curves = []
     for seed in range(10):

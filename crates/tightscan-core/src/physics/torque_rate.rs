@@ -376,7 +376,8 @@ pub fn resumed_after_time_gap<T: Sample, S: Sample>(
 /// first dip it comes back from later ends the window before the dip, and the samples from
 /// there on (the tail to the peak included) are not tested. (The real Rexroth runs pause a few
 /// degrees before the target: the part before the pause is then the one left.) Dips inside `stops` (recorded pauses, handled
-/// by [`stop_ranges`]) are skipped. `None` when no dip counts.
+/// by [`stop_ranges`]) are skipped, and so are intermittent friction episodes
+/// (`friction_episode`). `None` when no dip counts.
 pub fn without_relaxation<A: Sample, T: Sample>(
     angle: &[A],
     torque: &[T],
@@ -439,19 +440,20 @@ pub fn without_relaxation<A: Sample, T: Sample>(
 
 /// True when a dip from sample `high` to `low`, regained at `k_level`, is an intermittent friction
 /// episode rather than a relaxation: the torque fell at once (one sample carries at least
-/// [`AT_ONCE`] of the `drop`) and jumped back at once, and the tool kept turning through the
-/// dip (at least half the window's mean advance per sample, `typical_step`, from `high` to
-/// `k_level`: over the fall alone a fast channel's encoder often shows no advance at all, and
-/// at 10 kHz that lost half of what the rule gained). A relaxation comes
-/// with the tool slowing or standing, falls over several samples and is wound up again over
-/// several more (a dip's fall is `high..low`, the samples while the torque does not rise, so
-/// the noise of the samples after a one-sample fall can make it look three samples long). On
-/// the built-in simulator's intermittent faults (15-45 %, 1,500 curves a cell) the windows of 3
-/// of the 8 missed changes on white noise and 8 of the 12 on noise growing with the torque ended
-/// at such an episode's start, with every sample of the change left untested. The real Rexroth
-/// runs' pauses, sampled at about 830 Hz, fall and wind up in a sample or two as well (two
-/// thirds of the drop in one), but with the angle standing still or stepping back: the advance
-/// tells them apart.
+/// [`AT_ONCE`] of the `drop`) and jumped back at once, and the tool kept turning through the dip
+/// (at least half the window's mean advance per sample, `typical_step`, from `high` to
+/// `k_level`).
+///
+/// Why: a relaxation comes with the tool slowing or standing; it falls over several samples and
+/// is wound up over several more. A dip's fall is `high..low`, the samples while the torque does
+/// not rise, so the noise of the samples after a one-sample fall can make a friction step look
+/// three samples long. On the built-in simulator's intermittent faults (15-45 %, 1,500 curves a
+/// cell) the windows of 3 of the 8 missed changes on white noise and 8 of the 12 on noise growing
+/// with the torque ended at such an episode's start, with every sample of the change untested.
+/// The real Rexroth runs' pauses, sampled at about 830 Hz, also fall and wind up in a sample or
+/// two (two thirds of the drop in one), but with the angle standing still or stepping back: the
+/// advance tells them apart. It is judged over the whole dip: over the fall alone a fast
+/// channel's encoder often shows no advance (at 10 kHz, 0.1 deg, half the gain was lost).
 fn friction_episode(t: &impl Fn(usize) -> f64, a: &impl Fn(usize) -> f64, (high, low, k_level): (usize, usize, usize), drop: f64, typical_step: f64) -> bool {
     let largest_fall = (high + 1..=low).map(|k| t(k - 1) - t(k)).fold(0.0, f64::max);
     let largest_rise = (low + 1..=k_level).map(|k| t(k) - t(k - 1)).fold(0.0, f64::max);

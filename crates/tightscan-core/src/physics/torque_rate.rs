@@ -415,8 +415,11 @@ pub fn without_relaxation<A: Sample, T: Sample>(
         let in_stop = stops.iter().any(|&(lo, hi)| a(high) - a0 >= lo && a(high) - a0 <= hi);
         if drop > 6.0 * noise_sd && low - high >= 3 && !in_stop {
             let regained = (low..=last).find(|&k| t(k) >= level);
-            if let Some(k_level) = regained.filter(|&k_level| !friction_episode(&t, &a, (high, low, k_level), drop, typical_step)) {
-                if k_level - low >= 3 && drop >= 3.0 * rate * (a(k_level) - a(low)) {
+            if let Some(k_level) = regained {
+                if k_level - low >= 3
+                    && drop >= 3.0 * rate * (a(k_level) - a(low))
+                    && !friction_episode(&t, &a, (high, low, k_level), drop, typical_step)
+                {
                     // `level` is the sample before the fall, a noise sd or so above the line on
                     // average: the line is reached within a few noise sds of its extension.
                     let line = |k: usize| level + rate * (a(k) - a(high)).max(0.0) - BACK_ON_LINE_SDS * noise_sd;

@@ -40,9 +40,11 @@ _DEFAULTS: dict[str, Any] = _core.default_config()
 class CusumConfig:
     """Two-sided CUSUM on the standardised block torque rate (sigma units).
 
-    ``threshold`` (h) is derived from ``arl0``, the in-control average run length in blocks
-    (by default from the CUSUM's share of the decision rule's alpha), by
-    Siegmund's approximation, unless given explicitly.
+    By default each tightening's threshold h is the one at which the CUSUM alarms within the
+    blocks it monitors with probability equal to the CUSUM's share of the decision rule's
+    alpha (the exact finite-horizon probability). ``arl0``, the in-control average run length
+    in blocks, sets one h for every tightening by Siegmund's approximation; ``threshold`` sets
+    h itself.
     """
 
     kappa: float = _DEFAULTS["kappa"]

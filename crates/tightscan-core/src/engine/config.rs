@@ -11,9 +11,10 @@ use crate::physics::torque_rate::{BlockConfig, ElasticZoneConfig};
 pub struct CusumConfig {
     /// Drift (reference value); kappa = delta/2 is optimal for a shift of delta sigma.
     pub kappa: f64,
-    /// In-control average run length, in blocks, that sets the threshold (Siegmund). `None`:
-    /// derived from the decision rule's share of alpha for the CUSUM, ARL0 = (monitored blocks
-    /// at most) / share, since P(run length <= B) is about B / ARL0 for a long ARL0.
+    /// In-control average run length, in blocks, that sets one threshold for every tightening
+    /// (Siegmund). `None`: each tightening's threshold is the one at which the CUSUM alarms
+    /// within its monitored blocks with probability equal to the CUSUM's share of alpha (the
+    /// exact finite-horizon probability, `detectors::cusum::cusum_false_alarm_probabilities`).
     pub arl0: Option<f64>,
     /// Explicit threshold h; overrides `arl0` when set.
     pub threshold: Option<f64>,

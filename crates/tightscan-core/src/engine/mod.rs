@@ -28,10 +28,10 @@ use arrow_select::concat::concat_batches;
 use rayon::prelude::*;
 
 use crate::detectors::critical_values::critical_value_any_alpha;
-use crate::detectors::cusum::cusum_threshold;
+use crate::detectors::cusum::{cusum_threshold, cusum_threshold_for_steps};
 use crate::error::{Result, TightscanError};
 use crate::physics::thread::parse_thread;
-use analysis::Scratch;
+use analysis::{CusumCalibration, Scratch, ThresholdSource};
 use columns::{build_columns, passthrough_fields};
 use input::{to_nested, TighteningTable};
 use rows::RowResult;
@@ -46,7 +46,10 @@ pub use traces::{BreakTrace, CusumTrace, DetectorTraces, KdeTrace, L1Trace};
 #[derive(Clone, Debug)]
 pub struct Detector {
     config: DetectConfig,
+    /// The CUSUM's threshold at the most blocks a tightening can monitor.
     threshold: f64,
+    /// Its threshold by monitored block count, and the tables of its widening.
+    cusum_calibration: std::sync::Arc<analysis::CusumCalibration>,
     break_alpha: f64,
     /// Share of `break_alpha` the episode scan gets: the configured one, or 0 where it or the
     /// scan's share would fall below the shipped tables' smallest alpha.
@@ -214,16 +217,28 @@ impl Detector {
             }
             other => other,
         })?;
-        let threshold = match (c.threshold, c.arl0) {
-            (Some(h), _) if h.is_finite() && h > 0.0 => h,
+        // By default the threshold is the one at which the CUSUM alarms within the blocks a
+        // tightening monitors with probability equal to its share of alpha (the exact
+        // finite-horizon probability, `cusum_false_alarm_probabilities`), block count by block
+        // count. One threshold from Siegmund's ARL for the most blocks a window can hold made
+        // the CUSUM fire on 0.00-0.15 % of clean curves against a share of 0.25 %: a window of
+        // 14 blocks sees a fifth of the alarms of an endless stream at that ARL.
+        // The most blocks a window monitors: all `max_blocks` usable, less its training blocks.
+        let most_blocks = config.blocks.max_blocks;
+        let most_training = ((config.blocks.training_fraction * most_blocks as f64).ceil() as usize).max(config.blocks.min_training_blocks);
+        let most_monitored = most_blocks.saturating_sub(most_training).max(1);
+        let source = match (c.threshold, c.arl0) {
+            (Some(h), _) if h.is_finite() && h > 0.0 => ThresholdSource::Fixed(h),
             (Some(h), _) => return Err(TightscanError::parameter("threshold", format!("must be > 0, got {h}"))),
-            (None, Some(arl0)) => cusum_threshold(arl0, c.kappa, true)?,
-            (None, None) => {
-                let monitored = config.blocks.max_blocks as f64 * (1.0 - config.blocks.training_fraction);
-                cusum_threshold(monitored / d.share(DetectorKind::Cusum), c.kappa, true)?
-            }
+            (None, Some(arl0)) => ThresholdSource::Fixed(cusum_threshold(arl0, c.kappa, true)?),
+            (None, None) => ThresholdSource::FalseAlarm(d.share(DetectorKind::Cusum)),
         };
-        Ok(Self { config, threshold, break_alpha, episode_fraction, l1_alpha, l1_critical_value, kde_alpha, pf_alpha })
+        let cusum_calibration = CusumCalibration::shared(source, c.kappa, config.blocks.max_blocks.max(1));
+        let threshold = match source {
+            ThresholdSource::Fixed(h) => h,
+            ThresholdSource::FalseAlarm(alpha) => cusum_threshold_for_steps(alpha, c.kappa, most_monitored)?,
+        };
+        Ok(Self { config, threshold, cusum_calibration, break_alpha, episode_fraction, l1_alpha, l1_critical_value, kde_alpha, pf_alpha })
     }
 
     /// The configuration in use.
@@ -231,9 +246,16 @@ impl Detector {
         &self.config
     }
 
-    /// CUSUM threshold h in sigma units.
+    /// CUSUM threshold h in sigma units at the most blocks a tightening can monitor (30 by
+    /// default: 40 blocks less 10 training); a tightening with fewer blocks gets the threshold
+    /// for its own count ([`Detector::threshold_for`]) unless `threshold` or `arl0` is set.
     pub fn threshold(&self) -> f64 {
         self.threshold
+    }
+
+    /// CUSUM threshold h in sigma units for a tightening that monitors `blocks` blocks.
+    pub fn threshold_for(&self, blocks: usize) -> f64 {
+        self.cusum_calibration.threshold(blocks).unwrap_or(self.threshold)
     }
 
     /// False-alarm probability per tightening of the break detector (scan and end test).

@@ -220,7 +220,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("cusum_change_index", ResultType::Int64, "", "sample index of the change-start estimate"),
     ("cusum_change_angle", ResultType::Float64, "deg", "angle of the change-start estimate"),
     ("cusum_max_statistic", ResultType::Float64, "sigma", "largest CUSUM statistic over the window"),
-    ("cusum_threshold", ResultType::Float64, "sigma", "threshold h in use"),
+    ("cusum_threshold", ResultType::Float64, "sigma", "threshold h in use: by default the one at which the CUSUM alarms within cusum_blocks blocks with probability equal to its share of alpha (lower for fewer blocks); arl0 or threshold in the config set one h for every tightening"),
     ("cusum_reference_rate", ResultType::Float64, "Nm/deg", "torque rate of the training window"),
     ("cusum_noise_sd", ResultType::Float64, "Nm", "torque noise scale of the whitened window (innovation sd), from the block residuals, widened for the AR fit's uncertainty"),
     ("cusum_noise_df", ResultType::Float64, "", "degrees of freedom behind cusum_noise_sd"),

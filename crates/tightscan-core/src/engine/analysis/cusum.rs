@@ -23,42 +23,142 @@ fn chi_square_quantile(k: f64, z: f64) -> f64 {
 /// thousand tightenings, so it barely moves the size.
 const Z_0999: f64 = 3.090_232_306;
 
-/// The factor by which the standardised block rates are widened for the whitening's own
-/// uncertainty. With the AR filter's log gain known to a standard error `gain_log_se`, the
-/// block rates' variance is `lambda` times the one assumed, `ln lambda ~ N(0, (2 se)^2)`. The
-/// CUSUM's false-alarm probability over `blocks` steps, `1 - exp(-blocks / ARL)` (Siegmund's ARL
-/// of the scheme on N(0, lambda / c^2) increments, i.e. with kappa and h scaled by c /
-/// sqrt(lambda)), averaged over lambda (5-point Gauss-Hermite), is a convex function of lambda's
-/// spread: the factor `c >= 1` brings that average back to the nominal probability (bisection).
-/// 1 for white noise.
-fn predictive_scale(h: f64, kappa: f64, blocks: usize, gain_log_se: f64) -> f64 {
-    use crate::detectors::cusum::cusum_arl;
-    use crate::detectors::noise::NORMAL_NODES;
-    if !(gain_log_se > 0.0) || blocks == 0 {
-        return 1.0;
-    }
-    let steps = blocks as f64;
-    let false_alarm = |scale: f64| 1.0 - (-steps / cusum_arl(h * scale, kappa * scale, 0.0, true)).exp();
-    let nominal = false_alarm(1.0);
-    let averaged = |c: f64| -> f64 {
-        NORMAL_NODES.iter().map(|(z, w)| w * false_alarm(c * (-gain_log_se * z).exp())).sum()
-    };
-    let (mut lo, mut hi) = (1.0_f64, (6.0 * gain_log_se).exp());
-    if averaged(lo) <= nominal {
-        return 1.0;
-    }
-    if averaged(hi) > nominal {
-        return hi;
-    }
-    for _ in 0..40 {
-        let mid = 0.5 * (lo + hi);
-        if averaged(mid) > nominal {
-            lo = mid;
-        } else {
-            hi = mid;
+/// Where the CUSUM's threshold comes from: the default, the exact probability of an alarm
+/// within the blocks a tightening monitors at the CUSUM's share of alpha; or one threshold for
+/// every block count, set by the user (`threshold`, or `arl0` through Siegmund's ARL).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum ThresholdSource {
+    /// Alarm probability within the monitored blocks.
+    FalseAlarm(f64),
+    /// One threshold h.
+    Fixed(f64),
+}
+
+/// Offsets of ln(scale) at which the false-alarm probability is tabled for the predictive
+/// widening: -1 to 1.5 by 0.05. A scale of e^1.5 puts the threshold 4.5 times higher, where the
+/// probability is below 1e-30; below e^-1 the widening's Gauss-Hermite nodes reach only for
+/// a log-gain standard error above 0.35, and the table's end is used there (a smaller widening).
+const SCALE_GRID_START: f64 = -1.0;
+const SCALE_GRID_STEP: f64 = 0.05;
+const SCALE_GRID_POINTS: usize = 51;
+
+/// The CUSUM's threshold for one monitored block count, and ln of its false-alarm probability
+/// over that count with h and kappa scaled by e^u, u on the scale grid.
+#[derive(Debug)]
+struct StepsCalibration {
+    threshold: f64,
+    ln_false_alarm: Vec<f64>,
+}
+
+/// Thresholds and false-alarm tables by monitored block count, each computed the first time a
+/// tightening with that many blocks is analysed (a few milliseconds) and shared by every thread
+/// and every later call with the same settings.
+#[derive(Debug)]
+pub(crate) struct CusumCalibration {
+    kappa: f64,
+    source: ThresholdSource,
+    by_steps: Vec<std::sync::OnceLock<Option<StepsCalibration>>>,
+}
+
+impl CusumCalibration {
+    /// The calibration for `source` and `kappa`, from the process-wide cache.
+    pub(crate) fn shared(source: ThresholdSource, kappa: f64, max_steps: usize) -> std::sync::Arc<Self> {
+        use std::sync::{Arc, Mutex, OnceLock};
+        type Cache = Mutex<Vec<(ThresholdSource, u64, usize, Arc<CusumCalibration>)>>;
+        static CACHE: OnceLock<Cache> = OnceLock::new();
+        let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
+        let fresh = || Arc::new(Self { kappa, source, by_steps: (0..max_steps).map(|_| OnceLock::new()).collect() });
+        // A poisoned lock only means another thread panicked while holding it; the list is
+        // still whole (entries are pushed complete).
+        let mut list = cache.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        if let Some((.., c)) = list.iter().find(|(s, k, m, _)| *s == source && *k == kappa.to_bits() && *m == max_steps) {
+            return Arc::clone(c);
         }
+        let c = fresh();
+        list.push((source, kappa.to_bits(), max_steps, Arc::clone(&c)));
+        c
     }
-    hi
+
+    /// The threshold for `steps` monitored blocks.
+    pub(crate) fn threshold(&self, steps: usize) -> Option<f64> {
+        self.entry(steps).map(|e| e.threshold)
+    }
+
+    fn entry(&self, steps: usize) -> Option<&StepsCalibration> {
+        let steps = steps.max(1);
+        // More blocks than the table holds cannot happen with a validated config (blocks are
+        // at most `max_blocks`); the last entry would be conservative for them.
+        let slot = self.by_steps.get(steps - 1).or(self.by_steps.last())?;
+        slot.get_or_init(|| {
+            use crate::detectors::cusum::{cusum_false_alarm_probabilities, cusum_threshold_for_steps};
+            let threshold = match self.source {
+                ThresholdSource::FalseAlarm(alpha) => cusum_threshold_for_steps(alpha, self.kappa, steps).ok()?,
+                ThresholdSource::Fixed(h) => h,
+            };
+            let ln_false_alarm = (0..SCALE_GRID_POINTS)
+                .map(|g| {
+                    let scale = (SCALE_GRID_START + g as f64 * SCALE_GRID_STEP).exp();
+                    let p = cusum_false_alarm_probabilities(threshold * scale, self.kappa * scale, steps).ok()?;
+                    Some(p.last().copied().unwrap_or(0.0).max(1e-300).ln())
+                })
+                .collect::<Option<Vec<f64>>>()?;
+            Some(StepsCalibration { threshold, ln_false_alarm })
+        })
+        .as_ref()
+    }
+
+    /// The false-alarm probability over `steps` blocks with h and kappa scaled by `scale`
+    /// (cubic interpolation of its logarithm in ln(scale); the ends of the grid beyond it).
+    fn false_alarm(&self, steps: usize, scale: f64) -> Option<f64> {
+        let table = &self.entry(steps)?.ln_false_alarm;
+        let position = ((scale.ln() - SCALE_GRID_START) / SCALE_GRID_STEP).clamp(0.0, (SCALE_GRID_POINTS - 1) as f64);
+        let i = (position.floor() as usize).min(SCALE_GRID_POINTS - 2);
+        let t = position - i as f64;
+        let at = |j: isize| table[j.clamp(0, SCALE_GRID_POINTS as isize - 1) as usize];
+        let (p0, p1, p2, p3) = (at(i as isize - 1), at(i as isize), at(i as isize + 1), at(i as isize + 2));
+        // Catmull-Rom: the cubic through p1 and p2 with the neighbours' slopes.
+        let value = p1 + 0.5 * t * (p2 - p0 + t * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + t * (3.0 * (p1 - p2) + p3 - p0)));
+        Some(value.exp())
+    }
+
+    /// The factor by which the standardised block rates are widened for what the noise model
+    /// leaves uncertain. The block rates' true standard deviation is `sqrt(lambda)` times the one
+    /// assumed, with ln sqrt(lambda) ~ N(0, tau^2): tau^2 = se^2 (the AR filter's log gain,
+    /// whose square scales the rates' variance) + `scale_log_var` (the variance of the log of
+    /// the estimated noise scale; 1/(2 df) for Gaussian noise with df residual degrees of
+    /// freedom). The
+    /// false-alarm probability over `steps` blocks, at h and kappa scaled by c / sqrt(lambda)
+    /// and averaged over lambda (5-point Gauss-Hermite), is a convex function of lambda's
+    /// spread: the factor `c >= 1` brings that average back to the threshold's own probability
+    /// (bisection). The probability is the exact finite-horizon one over `steps` blocks, not
+    /// Siegmund's stationary rate, whose dependence on h is that of an endless stream.
+    pub(crate) fn predictive_scale(&self, steps: usize, gain_log_se: f64, scale_log_var: f64) -> f64 {
+        use crate::detectors::noise::NORMAL_NODES;
+        let tau = (gain_log_se.max(0.0).powi(2) + scale_log_var.max(0.0)).sqrt();
+        let Some(nominal) = self.false_alarm(steps, 1.0) else { return 1.0 };
+        if !(tau > 0.0) {
+            return 1.0;
+        }
+        let averaged = |c: f64| -> f64 {
+            NORMAL_NODES.iter().map(|(z, w)| w * self.false_alarm(steps, c * (-tau * z).exp()).unwrap_or(0.0)).sum()
+        };
+        let (mut lo, mut hi) = (1.0_f64, (6.0 * tau).exp());
+        if averaged(lo) <= nominal {
+            return 1.0;
+        }
+        if averaged(hi) > nominal {
+            return hi;
+        }
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if averaged(mid) > nominal {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        hi
+    }
 }
 
 impl Detector {
@@ -97,7 +197,11 @@ impl Detector {
             return Err(TighteningStatus::TooShort { samples: n, minimum: lag + 2, what: s.tested_part });
         }
         let gain = 1.0 - s.noise.coefficients.iter().sum::<f64>();
-        time_smoothed_angle(&s.xs, &s.index, TIME_SMOOTHING, &mut s.smoothed);
+        // Within the window only: past its end the tool brakes up to the peak, and an average
+        // reaching into those samples pulled the last samples' angle back, which steepened the
+        // last block's slope (independent generator, CST, white noise: the last block's z had
+        // mean +0.39 and made half the CUSUM's false alarms).
+        time_smoothed_angle(&s.xs[..n.min(s.xs.len())], &s.index, TIME_SMOOTHING, &mut s.smoothed);
         weigh(&s.smoothed, &s.weights, &mut s.weighted);
         whiten(&s.weighted, &s.noise.coefficients, &mut s.smooth_wx);
         block_stats_whitened(&s.x[lag..n], &s.smooth_wx[lag..n], &s.wy[lag..n], n_blocks, gain, &mut s.blocks);
@@ -141,15 +245,39 @@ impl Detector {
         }));
         let mid = s.residuals.len() / 2;
         let median_var = *s.residuals.select_nth_unstable_by(mid, f64::total_cmp).1;
-        let (mut rss, mut df) = (0.0, 0.0);
+        let (mut rss, mut df, mut kept) = (0.0, 0.0, 0usize);
         for &b in s.usable.iter() {
             let st = &blocks.stats[b];
             let dof = (st.n as f64 - 2.0).max(1.0);
             if st.rss() / dof <= 20.0 * median_var {
                 rss += st.rss();
                 df += dof;
+                kept += 1;
             }
         }
+        // The variance of ln(noise_sd), for the widening below, from the spread of the kept
+        // blocks' variances about the pooled one (the pooled variance is their df-weighted mean):
+        // 1/(2 df) under Gaussian noise, but heavy tails make it larger, and on the independent
+        // generator's t4 curves (13 blocks) the Gaussian value left the CUSUM at 0.60 % of clean
+        // curves against its share of 0.25 %.
+        let pooled_var = rss / df.max(1.0);
+        let scale_log_var = if kept >= 2 && pooled_var > 0.0 {
+            let spread: f64 = s
+                .usable
+                .iter()
+                .map(|&b| {
+                    let st = &blocks.stats[b];
+                    let dof = (st.n as f64 - 2.0).max(1.0);
+                    let r = st.rss() / dof;
+                    if r <= 20.0 * median_var { (dof * (r - pooled_var)).powi(2) } else { 0.0 }
+                })
+                .sum();
+            // var(s^2) = sum dof^2 (r - s^2)^2 / (sum dof)^2, with the k / (k - 1) of a variance
+            // about an estimated mean; var(ln s) = var(s^2) / (4 s^4) (delta method).
+            spread / (df * df) * kept as f64 / (kept - 1) as f64 / (4.0 * pooled_var * pooled_var)
+        } else {
+            0.0
+        };
         let rise = s.y[n - 1] - s.y[lag];
         // Floor for noise-free or coarsely quantised torque: 1e-6 of the rise.
         let noise_sd = (rss / df.max(1.0)).sqrt().max(1e-6 * rise.abs().max(f64::MIN_POSITIVE));
@@ -165,14 +293,17 @@ impl Detector {
         let dispersion = (sum_z2 / k).sqrt();
         let inflate = if sum_z2 > chi_square_quantile(k, Z_0999) { dispersion } else { 1.0 };
 
-        let predictive = predictive_scale(self.threshold, cfg.cusum.kappa, monitor.len(), s.noise.gain_log_se);
+        // The threshold for this many monitored blocks, and the widening for the noise model's
+        // uncertainty (`CusumCalibration`).
+        let threshold = self.cusum_calibration.threshold(monitor.len()).unwrap_or(self.threshold);
+        let predictive = self.cusum_calibration.predictive_scale(monitor.len(), s.noise.gain_log_se, scale_log_var);
         s.z.clear();
         s.z.extend(monitor.iter().map(|&b| z_of(b) / (inflate * predictive)));
-        let mut cusum = TwoSidedCusum::new(cfg.cusum.kappa, self.threshold);
+        let mut cusum = TwoSidedCusum::new(cfg.cusum.kappa, threshold);
         // The sample where monitored block j's evidence is complete: its last.
         let block_end = |j: usize| s.index[blocks.stats[monitor[j]].last + lag];
         let mut trace = s.trace.is_some().then(|| CusumTrace {
-            threshold: self.threshold,
+            threshold,
             kappa: cfg.cusum.kappa,
             ..CusumTrace::default()
         });
@@ -202,7 +333,7 @@ impl Detector {
         Ok(CusumRow {
             alarm,
             max_statistic: cusum.max_statistic(),
-            threshold: self.threshold,
+            threshold,
             reference_rate,
             noise_sd: noise_sd * inflate * predictive,
             noise_df: df,

@@ -5,6 +5,7 @@
 
 mod breaks;
 mod cusum;
+pub(super) use cusum::{CusumCalibration, ThresholdSource};
 mod friction;
 mod l1;
 mod pf;

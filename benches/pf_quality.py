@@ -3,7 +3,13 @@ grid of benches/size_grid.py (2 kHz, 0.1 deg; both generators), recall and onset
 coverage on abrupt changes by magnitude (both generators, CST and HDT), and how the
 statistic moves with the particle count (64 to 4,096) on the same curves.
 
-    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only] [--off-grid]
+    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only] [--off-grid] [--trace]
+
+``--trace`` re-measures the cells that ran over 1.5 alpha (CST and CSDT, white and t4) on
+three seeds a cell (``--n`` curves each, seeds 6000 + cell + 100 r as the size grid's first)
+with a 0.1 deg and a 0.01 deg encoder, and splits the built-in CSDT white cell's alarms by how
+close the tool's advance per sample lies to a whole number of encoder steps (benches/README.md,
+"What still oversizes CSDT").
 
 Writes benches/results/pf_quality.json.
 """
@@ -58,6 +64,61 @@ def off_grid(n: int, alpha: float) -> list[dict[str, Any]]:
                          "pf_far": float(np.mean(pf)), "rule_decided": len(rule), "rule_far": float(np.mean(rule))})
             print(f"off grid {generator:11s} {strategy} {rate:5.0f} Hz {colour} {phi}: pf {100 * np.mean(pf):.1f} % ({len(pf)}), "
                   f"rule {100 * np.mean(rule):.1f} % ({len(rule)})", flush=True)
+    return rows
+
+
+def steps_per_sample_off_integer(curves: Any, results: Any, step: float) -> np.ndarray:
+    """Per curve, over the tested window's stretches between stops (a recorded angle unchanged
+    for ten samples or more), the smallest distance of the mean advance per sample, in encoder
+    steps, from a whole number (near 0: the count rises by the same number of steps sample after
+    sample, and the encoder's floor error drifts slowly instead of averaging out)."""
+    out = []
+    for angle, a0, a1 in zip(curves["angle"].to_pylist(), results["tested_start_angle"].to_pylist(), results["tested_end_angle"].to_pylist()):
+        if a0 is None or a1 is None:
+            out.append(np.nan)
+            continue
+        a = np.asarray(angle, dtype=float)
+        a = a[(a >= a0) & (a <= a1)]
+        d = np.diff(a)
+        # Stretches end at stops: runs of ten or more unchanged angles.
+        moving = np.flatnonzero(d > 0)
+        cuts = np.flatnonzero(np.diff(moving) >= 10)
+        distances = []
+        for stretch in np.split(moving, cuts + 1):
+            if len(stretch) >= 20:
+                v = (a[stretch[-1] + 1] - a[stretch[0]]) / (stretch[-1] + 1 - stretch[0]) / step
+                distances.append(abs(v - round(v)) if v >= 0.5 else v)
+        out.append(min(distances) if distances else np.nan)
+    return np.array(out)
+
+
+def trace(n: int, alpha: float) -> list[dict[str, Any]]:
+    rows = []
+    cells = [("CST", "white", 0), ("CSDT", "white", 5), ("CST", "t4", 4), ("CSDT", "t4", 9)]
+    for generator, make in (("built-in", size_grid.builtin_cell), ("independent", size_grid.independent_cell)):
+        for strategy, colour, k in cells:
+            for encoder in (0.1, 0.01):
+                p_values, distances, alarms = [], [], []
+                for r in range(3):
+                    curves = make(n, 6000 + k + 100 * r, strategy, 2000.0, encoder, colour, 0.0)
+                    res = tightscan.detect_batch(curves, config={"pf": True, "pf_alpha": alpha, "alpha": alpha})
+                    p_values += [v for v in res["pf_p_value"].to_pylist() if v is not None]
+                    if generator == "built-in" and strategy == "CSDT" and colour == "white" and encoder == 0.1:
+                        distances.append(steps_per_sample_off_integer(curves, res, encoder))
+                        alarms.append(np.array([bool(v) for v in res["pf_alarm"].to_pylist()]))
+                p = np.array(p_values)
+                row = {"generator": generator, "strategy": strategy, "noise": colour, "encoder_deg": encoder, "curves": len(p),
+                       "rate": {str(a): float(np.mean(p <= a)) for a in (0.01, alpha, 0.1)}}
+                print(f"trace {generator:11s} {strategy:4s} {colour:5s} {encoder:4.2f} deg: pf at 1 / {100 * alpha:g} / 10 %: "
+                      + " / ".join(f"{100 * v:.2f}" for v in row["rate"].values()) + f" % ({len(p)} curves)", flush=True)
+                if distances:
+                    dist, alarm = np.concatenate(distances), np.concatenate(alarms)
+                    near = dist < 0.02
+                    row["near_integer"] = {"curves": int(near.sum()), "rate": float(alarm[near].mean()),
+                                           "other_curves": int((~near).sum()), "other_rate": float(alarm[~near].mean())}
+                    print(f"      advance within 0.02 steps of a whole number in a stretch: {100 * alarm[near].mean():.2f} % of "
+                          f"{near.sum()}; the others {100 * alarm[~near].mean():.2f} % of {(~near).sum()}", flush=True)
+                rows.append(row)
     return rows
 
 
@@ -117,9 +178,15 @@ def main() -> int:
     parser.add_argument("--n", type=int, default=200)
     parser.add_argument("--alpha", type=float, default=0.05)
     parser.add_argument("--particles-only", action="store_true")
+    parser.add_argument("--trace", action="store_true", help="only the oversized cells, three seeds each, 0.1 and 0.01 deg (--n 600 in benches/README.md)")
     parser.add_argument("--off-grid", action="store_true", help="only the spot check at 500 Hz / 10 kHz (--n 150 in benches/README.md)")
     args = parser.parse_args()
     out: dict[str, Any] = {"alpha": args.alpha, "n": args.n}
+    if args.trace:
+        out["trace"] = trace(args.n, args.alpha)
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "pf_quality_trace.json").write_text(json.dumps(out, indent=1))
+        return 0
     if args.off_grid:
         out["off_grid"] = off_grid(args.n, args.alpha)
         RESULTS.mkdir(exist_ok=True)

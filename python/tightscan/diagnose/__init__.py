@@ -345,6 +345,40 @@ def _diagnose(
     eng.weights_t = 1.0 / (sig_t * sig_t)
     eng._cache.clear()
     eng._pairs.clear()
+    def _speed_form_search(model_: dict[str, _Term], current_: _Fit, cands_: list[_Term], m_: int) -> dict[str, Any] | None:
+        """The best of the speed law's other forms (``speed_law_forms``, both speed sources) as
+        a round's candidate, when it passes the gain test at alpha / (candidates + shapes)."""
+        nonlocal build
+        tau_hint = _hints(model_, current_, {}).get("tau_s", 0.0)
+        grid: list[_Term] = []
+        for source, s_src in (("smoothed", s), ("speed channel as recorded", dataclasses.replace(s, omega=s.omega_raw) if s.omega_raw is not None else None)):
+            if s_src is None:
+                continue
+            build += 1
+            forms = speed_law_forms(s_src, eng, current_, declared, "speed_dependent_friction", build, tau_hint)
+            build += len(forms) + 1
+            for cand in forms:
+                if source != "smoothed":
+                    cand.info["speed_source"] = source
+            grid += forms
+        best: tuple[_Fit, _Term, list[int]] | None = None
+        for cand in grid:
+            fit_c, idx_c = evaluate_with(model_, cand)
+            if best is None or fit_c.rmse < best[0].rmse:
+                best = (fit_c, cand, idx_c[cand.key])
+        if best is None:
+            return None
+        alpha_f = alpha / (m_ + len(grid))
+        test = _gain_test(current_, best[0], alpha_f, min_gain)
+        if not test["significant"]:
+            return None
+        u = np.clip((current_.mse_t - best[0].mse_t) / np.maximum(current_.mse_t, 1e-300), -1.0, 1.0)
+        tests = _one_sided_tests(u)
+        gain = max(test["rmse_gain"], test["median_tightening_rmse_gain"])
+        entry = (gain, best[1], best[0], tests | {"bonferroni_alpha": alpha_f, "candidates_in_round": m_ + len(grid), "median_gain": test["median_tightening_rmse_gain"]})
+        shape = {k: v for k, v in best[1].info.items() if k in ("law", "stribeck_speed_rpm", "stribeck_exponent", "offset_speed_rpm", "speed_source")}
+        return {"form": shape, "gain": test, "shapes_tried": len(grid), "bonferroni_alpha": alpha_f, "_entry": entry, "_idx": best[2]}
+
     base, _ = evaluate_with(model, None)
     rmse_before = base.rmse
     mse_before_t = base.mse_t.copy()
@@ -433,6 +467,20 @@ def _diagnose(
             for alt in effects[-1].evidence.get("alternatives", []):
                 alt["rmse_gain_after_it"] = by_name.get(alt["name"])
         pair_evidence: dict[str, Any] | None = None
+        form_evidence: dict[str, Any] | None = None
+        if not significant_terms and any(t.name == "speed_dependent_friction" for t in cands_all):
+            # A speed law whose form the logarithmic and linear candidates miss (a Stribeck
+            # curve: static friction falling to a minimum, then viscous) can fit the table far
+            # better pooled yet gain in no consistent share of the tightenings: the wrong shape
+            # helps some and hurts others. Its other forms are then tried as candidates of the
+            # same effect, at alpha over the round's candidates and every shape tried
+            # (Bonferroni: the shape is chosen on the same data), before the pair search
+            form_evidence = _speed_form_search(model, current, cands_all, m)
+            if form_evidence is not None:
+                entry = form_evidence.pop("_entry")
+                # the form replaces the law of the same key in this round's fits
+                alone[entry[1].key], alone_idx[entry[1].key] = entry[2], form_evidence.pop("_idx")
+                significant_terms = [entry]
         if not significant_terms:
             # Two effects that cancel where both act (a channel lag lowers the torque where it
             # rises fast, friction rising with speed raises it there) show no gain one at a time:
@@ -590,6 +638,8 @@ def _diagnose(
             evidence["parsimony"] = parsimony_note
         if pair_evidence is not None:
             evidence["entered_as_pair"] = pair_evidence
+        if form_evidence is not None:
+            evidence["entered_in_another_form"] = form_evidence
         evidence["identification"] = identification
         if chosen is not best[1]:
             evidence["identification_note"] = f"{best[1].name} fitted best alone, but {chosen.name} encompasses it"

@@ -468,19 +468,6 @@ def _diagnose(
                 alt["rmse_gain_after_it"] = by_name.get(alt["name"])
         pair_evidence: dict[str, Any] | None = None
         form_evidence: dict[str, Any] | None = None
-        if not significant_terms and any(t.name == "speed_dependent_friction" for t in cands_all):
-            # A speed law whose form the logarithmic and linear candidates miss (a Stribeck
-            # curve: static friction falling to a minimum, then viscous) can fit the table far
-            # better pooled yet gain in no consistent share of the tightenings: the wrong shape
-            # helps some and hurts others. Its other forms are then tried as candidates of the
-            # same effect, at alpha over the round's candidates and every shape tried
-            # (Bonferroni: the shape is chosen on the same data), before the pair search
-            form_evidence = _speed_form_search(model, current, cands_all, m)
-            if form_evidence is not None:
-                entry = form_evidence.pop("_entry")
-                # the form replaces the law of the same key in this round's fits
-                alone[entry[1].key], alone_idx[entry[1].key] = entry[2], form_evidence.pop("_idx")
-                significant_terms = [entry]
         if not significant_terms:
             # Two effects that cancel where both act (a channel lag lowers the torque where it
             # rises fast, friction rising with speed raises it there) show no gain one at a time:
@@ -490,10 +477,26 @@ def _diagnose(
             # singles and pairs of the round. The member that fits better alone enters now,
             # the other has to pass the round after on its own.
             pair_evidence = _pair_search(cands_all, tried, alone, current, lambda a, b: evaluate_with(model, [a, b])[0], alpha, m, min_gain)
-            if pair_evidence is None:
+            if pair_evidence is not None:
+                first = next(t for t in cands_all if t.key == pair_evidence["enters_first"])
+                significant_terms = [(pair_evidence["joint_gain"]["rmse_gain"], first, alone[first.key], tests_by_key[first.key][1])]
+            elif any(t.name == "speed_dependent_friction" for t in cands_all):
+                # No pair either. A speed law whose form the logarithmic and linear candidates
+                # miss (a Stribeck curve: static friction falling to a minimum, then viscous) can
+                # fit the table far better pooled yet gain in no consistent share of the
+                # tightenings: the wrong shape helps some and hurts others. Its other forms are
+                # then tried as candidates of the same effect, at alpha over the round's
+                # candidates and every shape tried (Bonferroni: the shape is chosen on the same
+                # data). After the pair search, so that two effects that cancel (a lag and a
+                # speed law, which a Stribeck shape can mimic together) are found as such
+                form_evidence = _speed_form_search(model, current, cands_all, m)
+                if form_evidence is not None:
+                    entry = form_evidence.pop("_entry")
+                    # the form replaces the law of the same key in this round's fits
+                    alone[entry[1].key], alone_idx[entry[1].key] = entry[2], form_evidence.pop("_idx")
+                    significant_terms = [entry]
+            if not significant_terms:
                 break
-            first = next(t for t in cands_all if t.key == pair_evidence["enters_first"])
-            significant_terms = [(pair_evidence["joint_gain"]["rmse_gain"], first, alone[first.key], tests_by_key[first.key][1])]
         if round_no == max_effects:
             leftover_significant = True
             break
@@ -870,7 +873,11 @@ def _diagnose(
             "shapes_tried": len(grid),
             "grid": profile,
         }
-        if test["significant"] and best_form[3].info.get("law") == "stribeck" and len(best_by_exponent) > 1:
+        # a Stribeck law named in its own form (it entered the loop so) chooses its exponent the
+        # same way: its round took the exponent of the best pooled fit
+        named_stribeck = held.info.get("law") == "stribeck"
+        by_refined = (test["significant"] or named_stribeck) and best_form[3].info.get("law") == "stribeck" and len(best_by_exponent) > 1
+        if by_refined:
             # the exponent by the out-of-sample RMSE with each tightening's constants refined:
             # with v_s drawn per tightening, the pooled fit prefers the exponent whose curve is
             # the population's average (a mixture of Gaussian decays has an exponential-like
@@ -887,7 +894,7 @@ def _diagnose(
                     refined_form = (cand_fit[0], ref)
             best_form = chosen_form
             speed_forms[key]["exponent_by_refined_rmse"] = refined_by_exponent
-        if test["significant"]:
+        if test["significant"] or by_refined:
             current, current_idx, model = best_form[0], best_form[1], best_form[2]
     # the constant of each named effect per tightening (random effects around the pooled value,
     # out of sample): the reported parameter stays the pooled one, its spread is reported beside

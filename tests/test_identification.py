@@ -228,6 +228,43 @@ def test_parameter_recovery_within_15_percent_or_not_identifiable(strategy: str,
     json.dumps(d.to_dict(), allow_nan=False)
 
 
+def test_stribeck_friction_no_single_law_fits_is_named_in_its_own_form() -> None:
+    """Issue 12, item 1: small Stribeck friction under CSDT (the bench's set, seed 2) that the
+    logarithmic law fits 8 % better pooled but in no consistent share of the tightenings (p 0.5)
+    and the linear law not at all: nothing was named although the declared model's RMSE is three
+    times the noise. The speed law's other forms are tried then, at alpha over the round's
+    candidates and every shape tried, and the Stribeck form is named, alone, nothing after it."""
+    d, _ = _run("CSDT", ig.SpeedFriction(form="stribeck", coeff=(0.02, 0.05)), seed=2, n=300)
+    claims = _claims(d)
+    assert claims == [["speed_dependent_friction"]]
+    first = next(e for e in d.effects if e.level == "within_tightening")
+    assert first.parameters["form"] == "stribeck"
+    entered = first.evidence["entered_in_another_form"]
+    assert entered["gain"]["p_value"] < entered["bonferroni_alpha"] < 0.01 / entered["shapes_tried"]
+    assert d.rmse_after < 0.45 * d.rmse_before
+
+
+def test_small_inertia_under_a_hold_down_program_is_reported_not_identifiable() -> None:
+    """Issue 12, item 3: a small inertia under a hold-down program (the bench's HDT small set,
+    seed 2) comes out at 0.84 of the truth while the smoothed and the raw speed channel agree to
+    5 %; what gives it away is its dependence on the channels' relative timing: with the
+    acceleration half a sample later J falls to 0.83 of the estimate. It must be reported as not
+    identifiable, with that range, rather than as a value within 15 %."""
+    d, truth = _run("HDT", ig.Inertia(inertia_kgm2=(5e-5, 1e-4)), seed=2, n=300)
+    first = next(e for e in d.effects if e.level == "within_tightening")
+    assert first.names == ["inertia"]
+    p = first.parameters
+    true = float(np.mean(truth.column("inertia_kgm2").to_numpy()))
+    assert abs(p["J_kg_m2"]["value"] / true - 1.0) > 0.15  # the estimate is off: hence the flag
+    lo_s, hi_s = p["J_kg_m2"]["range_over_speed_estimates"]
+    assert hi_s / lo_s < 1.15  # the speed-channel check alone does not see it
+    assert p["identifiable"] is False
+    assert "half a sample" in p["note_identifiability"]
+    lo, hi = p["J_kg_m2"]["range_over_acceleration_alignment"]
+    assert hi / lo > 1.15
+    json.dumps(d.to_dict(), allow_nan=False)
+
+
 @pytest.mark.parametrize(
     "effects,names",
     [

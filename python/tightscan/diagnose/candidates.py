@@ -280,6 +280,10 @@ def _candidates(
             dt_ = np.r_[np.diff(s.t), 0.0]
             nxt = np.r_[(gid[1:] == gid[:-1]) & (s.seg[1:] == s.seg[:-1]), False] & el & (dt_ > 0)
             zd_dot = np.where(nxt, dz / np.where(dt_ > 0, dt_, 1.0), 0.0) * tau0
+            # the window's last sample has no next one: its backward difference (a zero there
+            # left the lag's curvature out of every window's end, where the tool stops)
+            prv = np.r_[False, nxt[:-1]] & el & ~nxt
+            zd_dot = np.where(prv, np.r_[0.0, zd_dot[:-1]], zd_dot)
             # ... and the transient from each anchor (the sample before the window, the end of a
             # pause), whose state a higher-order channel holds in more than the one recorded value
             restarted = np.cumsum(np.isfinite(s.restart_y) & el) - np.repeat(np.r_[0, np.cumsum(np.isfinite(s.restart_y) & el)][g.starts], np.diff(np.r_[g.starts, len(gid)])) > 0

@@ -72,6 +72,24 @@ _PRIMARY_PARAMETER = ("tau_ms", "J_kg_m2", "a_eff", "b_eff", "elasticity_at_refe
 __all__ = ["diagnose", "Diagnosis", "Effect", "write_report", "load_table", "EFFECT_NAMES"]
 
 
+
+def _speed_form_grid(s: Any, eng: _Engine, fit: _Fit, declared: list[F64], key: str, tag: int, tau_hint: float) -> tuple[list[_Term], int, int]:
+    """The speed law's other forms (``speed_law_forms``) on the smoothed speed and, where the
+    table has it, on the speed channel as recorded (it keeps the corners of a pause and of a
+    program step that the smoothing rounds off, where a Stribeck law is steepest): the terms,
+    the number of speed sources, and the next free tag (tags key the engine's caches)."""
+    grid = speed_law_forms(s, eng, fit, declared, key, tag + 1, tau_hint)
+    tag += len(grid) + 1
+    sources = 1
+    if s.omega_raw is not None:
+        raw_grid = speed_law_forms(dataclasses.replace(s, omega=s.omega_raw), eng, fit, declared, key, tag + 1, tau_hint)
+        tag += len(raw_grid) + 1
+        for cand in raw_grid:
+            cand.info["speed_source"] = "speed channel as recorded"
+        grid += raw_grid
+        sources = 2
+    return grid, sources, tag
+
 def diagnose(
     data: Any,
     *,
@@ -350,17 +368,7 @@ def _diagnose(
         a round's candidate, when it passes the gain test at alpha / (candidates + shapes)."""
         nonlocal build
         tau_hint = _hints(model_, current_, {}).get("tau_s", 0.0)
-        grid: list[_Term] = []
-        for source, s_src in (("smoothed", s), ("speed channel as recorded", dataclasses.replace(s, omega=s.omega_raw) if s.omega_raw is not None else None)):
-            if s_src is None:
-                continue
-            build += 1
-            forms = speed_law_forms(s_src, eng, current_, declared, "speed_dependent_friction", build, tau_hint)
-            build += len(forms) + 1
-            for cand in forms:
-                if source != "smoothed":
-                    cand.info["speed_source"] = source
-            grid += forms
+        grid, _, build = _speed_form_grid(s, eng, current_, declared, "speed_dependent_friction", build, tau_hint)
         best: tuple[_Fit, _Term, list[int]] | None = None
         for cand in grid:
             fit_c, idx_c = evaluate_with(model_, cand)
@@ -796,18 +804,7 @@ def _diagnose(
         if held.name != "speed_dependent_friction":
             continue
         tau_hint = _hints(model, current, current_idx).get("tau_s", 0.0)
-        grid = speed_law_forms(s, eng, current, declared, key, build + 1, tau_hint)
-        build += len(grid) + 1
-        sources = 1
-        if s.omega_raw is not None:
-            # and with the speed channel as recorded (it keeps the corners of a pause and of a
-            # program step that the smoothing rounds off, where a Stribeck law is steepest)
-            raw_grid = speed_law_forms(dataclasses.replace(s, omega=s.omega_raw), eng, current, declared, key, build + 1, tau_hint)
-            build += len(raw_grid) + 1
-            for cand in raw_grid:
-                cand.info["speed_source"] = "speed channel as recorded"
-            grid += raw_grid
-            sources = 2
+        grid, sources, build = _speed_form_grid(s, eng, current, declared, key, build, tau_hint)
         # the test of the best shape: Bonferroni over the law families and speed sources. The
         # shape within a family (v_s and delta, or v0) is a fitted parameter, chosen by the
         # same out-of-sample RMSE; its optimism, one shape among neighbouring ones that fit

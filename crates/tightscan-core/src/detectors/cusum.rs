@@ -146,21 +146,28 @@ pub const ARL_QUADRATURE_NODES: usize = 60;
 /// Solved by the Nystroem method with Gauss-Legendre quadrature, unknowns L(0) and L at the
 /// nodes (the method of R spc's `xcusum.arl`).
 fn integral_equation_arl(kappa: f64, h: f64, mu: f64, nodes_count: usize) -> Option<f64> {
-    let (nodes, weights) = gauss_legendre(nodes_count, 0.0, h);
+    let (_, kernel) = nystroem_kernel(kappa, h, mu, nodes_count);
     let n = nodes_count + 1;
-    // Point 0 is x = 0; point i >= 1 is node i - 1.
-    let x = |i: usize| if i == 0 { 0.0 } else { nodes[i - 1] };
-    let system = nalgebra::DMatrix::from_fn(n, n, |i, j| {
-        let identity = if i == j { 1.0 } else { 0.0 };
-        let kernel = if j == 0 {
-            normal_cdf(kappa - x(i) - mu)
-        } else {
-            weights[j - 1] * normal_density(nodes[j - 1] + kappa - x(i) - mu)
-        };
-        identity - kernel
-    });
+    let system = nalgebra::DMatrix::from_fn(n, n, |i, j| (if i == j { 1.0 } else { 0.0 }) - kernel[i * n + j]);
     let ones = nalgebra::DVector::from_element(n, 1.0);
     system.lu().solve(&ones).map(|l| l[0])
+}
+
+/// The Nystroem discretisation of the CUSUM's one-step transition on [0, h] with increments
+/// N(`mu`, 1) less `kappa`: the points (0, then the Gauss-Legendre nodes) and the row-major
+/// (nodes + 1)^2 kernel whose row i holds, from point i, the mass of S' = 0 (column 0) and the
+/// quadrature weights of S' at each node. Shared by the ARL equation and the finite-horizon
+/// recursion.
+fn nystroem_kernel(kappa: f64, h: f64, mu: f64, nodes_count: usize) -> (Vec<f64>, Vec<f64>) {
+    let (nodes, weights) = gauss_legendre(nodes_count, 0.0, h);
+    let n = nodes_count + 1;
+    let points: Vec<f64> = std::iter::once(0.0).chain(nodes.iter().copied()).collect();
+    let mut kernel = Vec::with_capacity(n * n);
+    for &x in &points {
+        kernel.push(normal_cdf(kappa - x - mu));
+        kernel.extend(nodes.iter().zip(&weights).map(|(&y, &w)| w * normal_density(y + kappa - x - mu)));
+    }
+    (points, kernel)
 }
 
 /// Exact (to numerical precision) ARL of the CUSUM for a mean shift `shift` (sigma units): the
@@ -225,24 +232,9 @@ fn finite_horizon(h: f64, kappa: f64, steps: usize, nodes_count: usize) -> Vec<f
 /// int_0^h phi(y + kappa - x) Q_{k-1}(y) dy, so that probabilities far below 1e-16 (a threshold
 /// scaled up for the predictive widening) keep their digits.
 fn one_sided_alarm(h: f64, kappa: f64, steps: usize, nodes_count: usize) -> Vec<f64> {
-    let (nodes, weights) = gauss_legendre(nodes_count, 0.0, h);
-    let n = nodes_count + 1;
-    // Point 0 is x = 0; point i >= 1 is node i - 1. Row i: the mass of S' = 0 from x, then the
-    // quadrature weights of S' at each node.
-    let x = |i: usize| if i == 0 { 0.0 } else { nodes[i - 1] };
-    let kernel: Vec<f64> = (0..n)
-        .flat_map(|i| {
-            let (nodes, weights) = (&nodes, &weights);
-            (0..n).map(move |j| {
-                if j == 0 {
-                    normal_cdf(kappa - x(i))
-                } else {
-                    weights[j - 1] * normal_density(nodes[j - 1] + kappa - x(i))
-                }
-            })
-        })
-        .collect();
-    let escape: Vec<f64> = (0..n).map(|i| normal_cdf(x(i) - h - kappa)).collect();
+    let (points, kernel) = nystroem_kernel(kappa, h, 0.0, nodes_count);
+    let n = points.len();
+    let escape: Vec<f64> = points.iter().map(|&x| normal_cdf(x - h - kappa)).collect();
     let mut alarm = vec![0.0; n];
     let mut next = vec![0.0; n];
     let mut out = Vec::with_capacity(steps);

@@ -236,7 +236,12 @@ impl Detector {
         let cusum_calibration = CusumCalibration::shared(source, c.kappa, config.blocks.max_blocks.max(1));
         let threshold = match source {
             ThresholdSource::Fixed(h) => h,
-            ThresholdSource::FalseAlarm(alpha) => cusum_threshold_for_steps(alpha, c.kappa, most_monitored)?,
+            // From the shared table (computed once per process); the direct call only to name
+            // the error where the table could not hold one.
+            ThresholdSource::FalseAlarm(alpha) => match cusum_calibration.threshold(most_monitored) {
+                Some(h) => h,
+                None => cusum_threshold_for_steps(alpha, c.kappa, most_monitored)?,
+            },
         };
         Ok(Self { config, threshold, cusum_calibration, break_alpha, episode_fraction, l1_alpha, l1_critical_value, kde_alpha, pf_alpha })
     }

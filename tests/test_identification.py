@@ -175,6 +175,52 @@ def test_nothing_claimed_after_the_lag_for_the_misfit_of_its_form(effect: Any) -
     assert 0 < params["tau_ms"]["se_folds"] < 0.1 * params["tau_ms"]["value"]
 
 
+def _noise_floor(d: Diagnosis, truth: pa.Table) -> float:
+    """The generator's own noise sd over the samples the loop models (the bench's
+    ``truth_floor``): what an RMSE after can reach."""
+    pdata = d.plot_data
+    row = {v: i for i, v in enumerate(truth.column("tightening_id").to_pylist())}
+    r = np.array([row[i] for i in pdata["ids"]])
+    col = {c: truth.column(c).to_numpy(zero_copy_only=False).astype(float)[r] for c in ("noise_sd_nm", "noise_sd_rel", "noise_sd_target_rel", "target_torque")}
+    gid = pdata["gid"]
+    sd = col["noise_sd_nm"][gid] + col["noise_sd_target_rel"][gid] * np.nan_to_num(col["target_torque"])[gid] + col["noise_sd_rel"][gid] * np.abs(np.asarray(pdata["y"]))
+    return float(np.sqrt(np.mean(sd * sd)))
+
+
+def test_a_second_order_lag_relaxes_from_the_state_measured_before_the_window() -> None:
+    """Issue 12: a second-order filter under a hold-down program (the bench's lowpass2 HDT large
+    set, seed 2) was held in the lag's first-order linearised form, -tau dT/dt, the channel's
+    steady state on a ramp. At the window's start the channel is not there yet, and the RMSE
+    after was 1.23 of the noise sd, the excess in each window's first 8-12 samples. The
+    relaxation from the state measured before the window (two pooled columns, scaled by how
+    far the recorded torque there is from the linearised model) brings it to 1.06 and the mean
+    lag to 0.99 of the truth (1.05 before)."""
+    effect = ig.TorqueDynamics(form="lowpass2", natural_freq_hz=(60.0, 120.0), damping=0.7)
+    d, truth = _run("HDT", effect, seed=2, n=300)
+    assert _claims(d) == [["channel_delay"]]
+    assert d.rmse_after / _noise_floor(d, truth) < 1.1
+    lag = d.effects[0]
+    assert lag.evidence["lag_anchor_transients"]["kept"]
+    mean_lag = float(np.mean(2 * truth.column("damping").to_numpy() / (2 * np.pi * truth.column("natural_freq_hz").to_numpy())))
+    assert lag.parameters["tau_ms"]["value"] == pytest.approx(1000 * mean_lag, rel=0.04)
+    json.dumps(d.to_dict(), allow_nan=False)
+
+
+def test_a_delay_held_in_linearised_form_claims_nothing_for_its_start_misfit() -> None:
+    """Issue 12, item 4: a pure delay under a hold-down program (the bench's delay HDT large set,
+    seed 2). After the lag (round 1, still in its linearised form, which has no extension) a
+    logarithmic speed law gained 1.7 % at p 3.5e-6 and was named, tied with time drift,
+    inertia and pressure friction: it took up the lag's misfit at each window's start. The
+    misfit test now gives such a lag the relaxation from the measured state at its anchors as
+    its extension, the speed law does not keep its gain with it in, and nothing is claimed
+    after the lag (the delay 1.03 of the truth; it was 1.14)."""
+    d, truth = _run("HDT", ig.TorqueDynamics(form="delay", delay_s=(0.002, 0.004)), seed=2, n=300)
+    assert _claims(d) == [["channel_delay"]]
+    misfit = d.details["form_misfit"]
+    assert misfit and misfit[0]["effect"] == "channel_delay"
+    assert d.effects[0].parameters["tau_ms"]["value"] == pytest.approx(1000 * float(np.mean(truth.column("delay_s").to_numpy())), rel=0.1)
+
+
 def _speed_elasticity(p: dict[str, Any], t: pa.Table) -> float:
     """The true d ln(T - T_p) / d ln v at the loop's reference speed (the quantity both of its
     speed laws estimate; the bench's truth, benches/diagnose_confusion.py)."""

@@ -55,7 +55,7 @@ from .._progress import Progress
 from ..exceptions import InvalidParameterError
 from .prepare import _as_table, _prepare, F64
 from .fit import _Engine, _Fit, _folds, _one_sided_tests, _Term
-from .candidates import _candidates
+from .candidates import _anchor_transients, _candidates, _fitted_declared
 from .identify import _collinearity, _gain_test, _identify
 from .spectrum import _long_stretch, _spectral_search, _whiteness
 from .select import _grouped_median, _hints, _level2, _level2_inputs, _model_string, _partial_corr, _partial_residual, _quantiles
@@ -350,7 +350,23 @@ def _diagnose(
                     paths.append(tau_now * step * lag_at.columns[0])
             if len(paths) == 2:
                 directions[key] = [(paths[0] - paths[1]) / (1.1 - 1 / 1.1)]
+                if held.info.get("anchor_transients") and len(idx_[key]) == 3:
+                    # the relaxation from the anchors has a factor of its own: how far the
+                    # channel's state is off there is measured with the noise of a few samples
+                    directions[key].append(sum((held.columns[i] * float(fit_.beta[idx_[key][i]]) for i in (1, 2)), np.zeros(len(s.y))))
         return refine_per_tightening(eng, pc_, zc_, fit_, comps, alpha, directions, laws)
+
+    def _lag_anchor_columns(held: _Term, fit_: _Fit, idx_: list[int]) -> list[F64]:
+        """The relaxation from the anchors' measured state (``_anchor_transients``) of a lag
+        held in its first-order linearised form (one column, no extension), at its fitted tau;
+        [] for any other term."""
+        if held.name != "channel_delay" or held.extension or len(held.columns) != 1:
+            return []
+        tau_now = float(fit_.beta[idx_[0]])
+        if not 0 < tau_now < 1.0:
+            return []
+        cols = _anchor_transients(s, _fitted_declared(s, fit_, declared), held.columns[0], tau_now)
+        return cols if any(np.any(c != 0) for c in cols) else []
 
     model: dict[str, _Term] = {}
     base, _ = evaluate_with(model, None)
@@ -568,9 +584,10 @@ def _diagnose(
         # first-order one), which a confounded proxy would otherwise be named for
         misfit = None
         for ekey, held in model.items():
-            if not held.extension:
+            extension = held.extension or _lag_anchor_columns(held, current, current_idx[ekey])
+            if not extension:
                 continue
-            ext = _Term(held.name, held.description, False, [f"{held.name}: extension {i}" for i in range(len(held.extension))], held.extension, _no_parameters, {}, f"{ekey}:extension", held.tag)
+            ext = _Term(held.name, held.description, False, [f"{held.name}: extension {i}" for i in range(len(extension))], extension, _no_parameters, {}, f"{ekey}:extension", held.tag)
             fit_ext = evaluate_with(model, ext)[0]
             keep = _gain_test(fit_ext, evaluate_with(model, [ext, term])[0], alpha / m, min_gain)
             if not keep["significant"]:
@@ -691,6 +708,35 @@ def _diagnose(
     # first-order value beside it). The extended form enters the model (and rmse_after) only
     # when it passes the loop's out-of-sample gain test at alpha
     lag_forms: dict[str, Any] = {}
+    lag_anchor: dict[str, Any] = {}
+    # a lag held in its first-order linearised form (-dT/dt: the channel's steady state on a
+    # ramp) is wrong where the channel is not in that state, at the window's start and after a
+    # pause: a second-order filter under a hold-down program left 1.23 of the noise sd, the
+    # excess in each window's first 8-12 samples, and with that misfit its tau 1.05 of the
+    # mean lag. The relaxation from the state measured at each anchor (``_anchor_transients``,
+    # two pooled columns) enters the lag's term when it passes the gain test at alpha (that
+    # set: 1.06 of the noise sd, tau 0.99 of the truth)
+    for key, held in list(model.items()):
+        cols = _lag_anchor_columns(held, current, current_idx[key])
+        if not cols:
+            continue
+        anchored = dataclasses.replace(
+            held,
+            labels=held.labels + ["relaxation from the anchor state", "relaxation from the anchor state (rate)"],
+            columns=held.columns + cols,
+            info=dict(held.info) | {"anchor_transients": "relaxation from the recorded torque before the window and after each pause (two pooled columns)"},
+        )
+        trial = dict(model)
+        trial[key] = anchored
+        fit_anc, idx_anc = evaluate_with(trial, None)
+        test = _gain_test(current, fit_anc, alpha, 0.0)
+        lag_anchor[key] = {
+            "gain": test,
+            "tau_ms_without": held.parameters(current, current_idx[key]).get("tau_ms"),
+            "kept": test["significant"],
+        }
+        if test["significant"]:
+            model, current, current_idx = trial, fit_anc, idx_anc
     for key, held in list(model.items()):
         if held.name != "channel_delay" or len(held.extension) < 4:
             continue
@@ -916,6 +962,8 @@ def _diagnose(
                 else "first order or not told apart from it; tau_ms is the mean lag of the extended form (consistent for any form), first_order_tau_ms the first-order fit"
             )
             eff.evidence["lag_form"] = lf
+        if key in lag_anchor:
+            eff.evidence["lag_anchor_transients"] = lag_anchor[key]
         if key in speed_forms:
             eff.evidence["speed_law_form"] = speed_forms[key]
             eff.parameters["form"] = str(model[key].info.get("law"))

@@ -176,6 +176,52 @@ def _lowpass_regressor(s: _Samples, g: _Groups, slope_x: F64, tau: float, decay:
     return out
 
 
+def _anchor_transients(s: _Samples, fitted: F64, lag_col: F64, tau: float) -> list[F64]:
+    """The relaxation of a channel lag from its state at each anchor (the sample just before the
+    elastic window, the end of a pause), for a lag held in its first-order linearised form
+    ``y = T_hat + tau (-dT_hat/dt)``: two columns, ``m e^-u`` and ``m u e^-u`` with
+    ``u = (t - t_anchor) / tau``.
+
+    Why: the linearisation is the channel's steady state on a ramp. At the window's start the
+    channel is not there yet (before the window the torque rose along the seating curve, at
+    another rate), and how far it is off is measured: ``m``, the recorded torque at the anchor
+    less the linearised model carried back to the anchor's time. A channel of order two holds
+    its state in a value and a rate, and relaxes from it as a combination of ``e^-u`` and
+    ``u e^-u`` (exact for two equal poles, close for damping near 0.7 with tau the mean lag;
+    a first-order channel needs only the first): with one pooled coefficient each, the
+    relaxation is predicted from the data before the window, not fitted per tightening (which
+    the out-of-sample protocol cannot estimate from the few samples it spans). ``fitted`` is
+    the fitted declared torque and ``lag_col`` the lag's column times its coefficient's unit
+    (``-dT_hat/dt``); the model at a sample is ``fitted + tau lag_col``."""
+    n = len(s.y)
+    el = s.seg == 0
+    if s.t is None or tau <= 0 or not np.any(el):
+        return []
+    new_run = np.r_[True, (s.gid[1:] != s.gid[:-1]) | (s.seg[1:] != s.seg[:-1])]
+    first = new_run & el
+    restart = el & np.isfinite(s.restart_y) & ~first
+    t_anchor = np.full(n, np.nan)
+    y_anchor = np.full(n, np.nan)
+    t_anchor[first] = s.pre_t[s.gid[first]]
+    y_anchor[first] = s.pre_y[s.gid[first]]
+    t_anchor[restart] = s.restart_t[restart]
+    y_anchor[restart] = s.restart_y[restart]
+    # the model carried back from the anchor's first sample to the anchor (at the rate -lag_col)
+    is_anchor = first | restart
+    m_at = np.where(is_anchor, y_anchor - (fitted + tau * lag_col + lag_col * (s.t - t_anchor)), np.nan)
+    # each elastic sample takes the latest anchor of its own tightening and window
+    last = np.maximum.accumulate(np.where(is_anchor, np.arange(n), -1))
+    run_start = np.maximum.accumulate(np.where(new_run, np.arange(n), 0))
+    ok = el & (last >= run_start)
+    a = np.where(ok, last, 0)
+    m = np.where(ok, m_at[a], np.nan)
+    u = (s.t - t_anchor[a]) / tau
+    ok &= np.isfinite(m) & np.isfinite(u) & (u >= 0)
+    e = np.where(ok, np.exp(-np.where(ok, u, 0.0)), 0.0)
+    m = np.where(ok, m, 0.0)
+    return [m * e, m * np.where(ok, u, 0.0) * e]
+
+
 def _candidates(
     s: _Samples, eng: _Engine, fit: _Fit, declared: list[F64], tag: int, model_periods: Sequence[tuple[str, float]], hints: dict[str, float]
 ) -> tuple[dict[str, _Term], dict[str, Any]]:

@@ -291,9 +291,15 @@ pub fn block_stats_whitened(position: &[f64], x: &[f64], y: &[f64], n_blocks: us
 }
 
 /// Encoder resolution of an angle series (relative, sorted non-decreasing within runs): the
-/// smallest positive difference between consecutive samples, when angles repeat or step by
-/// it often enough to be a grid (a quarter of the steps at most twice it); 0 for unquantised
-/// angles.
+/// grid that every step between consecutive samples is a whole multiple of, or failing one the
+/// smallest step where nine in ten steps are its multiples; 0 for unquantised angles.
+///
+/// The smallest step need not be the grid: a tool turning 2.98 encoder steps a sample records
+/// steps of 2 and 3 counts, never one. Taking the smallest step or nothing left the angle's slow
+/// quantisation beat (one count every 50 samples) in the break scan's regressor and switched
+/// its encoder-step check off: on the independent generator's clean CST curves (2 kHz, 0.1 deg,
+/// white noise, 4,000 curves) the 194 within 0.05 steps a sample below a whole number alarmed
+/// at 4.6 % (9; 2 on the same curves with a 0.001 deg encoder), the rest at 0.5 %.
 pub fn encoder_resolution(x: &[f64]) -> f64 {
     let mut smallest = f64::INFINITY;
     for w in x.windows(2) {
@@ -305,19 +311,47 @@ pub fn encoder_resolution(x: &[f64]) -> f64 {
     if !smallest.is_finite() {
         return 0.0;
     }
-    // A grid: most steps are whole multiples of the smallest one.
-    let on_grid = x
-        .windows(2)
-        .filter(|w| {
-            let q = (w[1] - w[0]) / smallest;
-            (q - q.round()).abs() < 0.05
+    let on_grid = |grid: f64| {
+        let hits = x
+            .windows(2)
+            .filter(|w| {
+                let q = (w[1] - w[0]) / grid;
+                (q - q.round()).abs() < 0.05
+            })
+            .count();
+        hits * 10 >= 9 * (x.len() - 1)
+    };
+    // Refined while a step lies off the grid: the common divisor of the grid and that step, by
+    // Euclid's algorithm on the remainders (to the nearest multiple), stopped where a remainder
+    // is within the grid test's tolerance of nothing. Nine in ten on the smallest step's grid is
+    // not enough: a tool turning 3.02 steps a sample steps by 3 counts 49 times in 50 and by 4
+    // once, and 0.3 deg taken for the encoder's step tripled its check. A divisor under a 64th
+    // of the smallest step is no encoder's: then the coarsest grid nine in ten steps are on, or
+    // none.
+    let off_grid = |grid: f64| {
+        x.windows(2).map(|w| w[1] - w[0]).find(|&d| {
+            let q = d / grid;
+            d > 1e-9 && (q - q.round()).abs() >= 0.05
         })
-        .count();
-    if on_grid * 10 >= 9 * (x.len() - 1) {
-        smallest
-    } else {
-        0.0
+    };
+    let fallback = if on_grid(smallest) { smallest } else { 0.0 };
+    let mut grid = smallest;
+    for _ in 0..8 {
+        let Some(off) = off_grid(grid) else { return grid };
+        let (mut a, mut b) = (off.max(grid), off.min(grid));
+        loop {
+            let remainder = (a - (a / b).round() * b).abs();
+            if remainder < 0.05 * b {
+                break;
+            }
+            (a, b) = (b, remainder);
+            if b < smallest / 64.0 {
+                return fallback;
+            }
+        }
+        grid = b;
     }
+    fallback
 }
 
 /// Where the tool resumed after the last stop that the recorder did not sample: a tool that
@@ -577,6 +611,37 @@ pub fn stop_ranges<A: Sample, T: Sample>(angle: &[A], torque: &[T], window: Elas
 mod tests {
     use super::*;
     use crate::physics::phases::{find_phases, PhaseScratch, YieldConfig};
+
+    /// The floor-quantised angle of a tool turning `steps` encoder steps of 0.1 deg a sample.
+    fn quantised(steps: f64, n: usize) -> Vec<f64> {
+        (0..n).map(|i| (1234.567 + 0.1 * steps * i as f64).div_euclid(0.1) * 0.1).collect()
+    }
+
+    #[test]
+    fn encoder_resolution_is_the_steps_common_divisor() {
+        // Steps of one count and two: the smallest step is the grid.
+        assert!((encoder_resolution(&quantised(1.3, 200)) - 0.1).abs() < 1e-9);
+        // 2.98 and 4.02 counts a sample step by 2 and 3, and by 4 and 5 counts: no step is one
+        // count, and the old rule (the smallest step, or nothing) found no grid.
+        for steps in [2.98, 3.02, 4.02, 5.97] {
+            let r = encoder_resolution(&quantised(steps, 300));
+            assert!((r - 0.1).abs() < 1e-9, "{steps} steps a sample: resolution {r}");
+        }
+        // A constant whole number of counts a sample: the step itself is a grid.
+        let r = encoder_resolution(&quantised(3.0, 100));
+        assert!(r > 0.0 && ((r / 0.1) - (r / 0.1).round()).abs() < 1e-6, "{r}");
+        // An unquantised angle with uneven steps has none.
+        let mut state = 7u64;
+        let mut angle = 0.0;
+        let free: Vec<f64> = (0..300)
+            .map(|_| {
+                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                angle += 0.3 + 0.2 * (state >> 11) as f64 / (1u64 << 53) as f64;
+                angle
+            })
+            .collect();
+        assert_eq!(encoder_resolution(&free), 0.0);
+    }
 
     #[test]
     fn window_of_a_clean_ramp() {

@@ -223,9 +223,13 @@ pub struct WhitenedLine<'a> {
     pub restarts: &'a [std::ops::Range<usize>],
 }
 
-/// Variance let into the offset where the tool restarts ([`WhitenedLine::restarts`]), in the
-/// filter's torque units (the window's largest whitened torque is 1): diffuse against a
-/// relaxation of a few noise sds.
+/// Variance let into the offset where the tool restarts ([`WhitenedLine::restarts`]), in units
+/// of the noise variance (the filter's covariances are in units of `s^2`): a level shift of
+/// about one noise sd, not a free level. Measured on the independent generator's clean CSDT
+/// curves (1,800 a cell, alpha 0.05, benches/pf_quality.py seeds): 0 and 1 alarm alike (white
+/// 7.12 / 7.00 %, t4 8.17 / 8.17 %); a free level (1e4) raised them (t4 noise with exact
+/// angles: 6.72 -> 7.78 %): with the level free after the stop, a kink just before it is a
+/// second line of its own, which the null table's continuous line does not have.
 const RESTART_LEVEL_VAR: f64 = 1.0;
 
 /// A line's first `n` samples in the filter's units: the angle over the window's span (the

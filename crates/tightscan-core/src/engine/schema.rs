@@ -259,7 +259,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("pf_p_value", ResultType::Float64, "", "p-value of pf_statistic from the shipped null table (white Gaussian noise, by window length), averaged over the whitening's uncertainty (the noise model's log-gain standard error); exp(-pf_statistic) is Ville's bound, valid but conservative"),
     ("pf_fault_probability", ResultType::Float64, "", "posterior probability of the fault mode (the torque rate has jumped) after the window's last sample"),
     ("pf_change_angle", ResultType::Float64, "deg", "posterior median of where the torque rate jumped: on an alarm from the exact posterior of the change's sample (the line turning about the snug), else from the filter's particles (null when no particle jumped)"),
-    ("pf_change_lo", ResultType::Float64, "deg", "5 % posterior quantile of the jump's angle (90 % credible interval, on the interpolated angle; from the sample before it, since a jump at a sample happened after the one before)"),
+    ("pf_change_lo", ResultType::Float64, "deg", "5 % posterior quantile of the jump's angle (90 % credible interval, on the interpolated angle, plus the half encoder step by which an average of floor-quantised counts lags the shaft; from the sample before it, since a jump at a sample happened after the one before)"),
     ("pf_change_hi", ResultType::Float64, "deg", "95 % posterior quantile of the jump's angle (90 % credible interval)"),
     ("pf_friction", ResultType::ListFloat64, "Nm/deg", "posterior mean torque rate (the friction proxy) after each tested sample from the filter's 11th on, on the whitened window (null unless pf_friction is asked)"),
 ];

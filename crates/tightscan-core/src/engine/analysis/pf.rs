@@ -76,9 +76,14 @@ impl Detector {
         // break scan's change angle): the recorded angle of a 0.1 deg encoder at 2 kHz is a
         // staircase, and an interval between two recorded angles missed the built-in
         // simulator's onsets in 41-54 % of CST alarms (the onset lay past its recorded end).
+        // Where that angle is the recorded one or an average of recorded ones, it lags the
+        // shaft by half an encoder step ([`floor_lag`]): uncorrected, the change angles of the
+        // built-in simulator's CSDT alarms lay a median 0.04-0.05 deg early and their interval
+        // ended short of the onset in 42-60 % (benches/README.md, pf section).
+        let lag_of_floor = floor_lag(&s.x[..n], &s.xs[..n]);
         let interpolated = |j: usize| -> Option<f64> {
             let i = *s.index.get(j)?;
-            Some(angle.get(i)?.to_f64() - s.x.get(j)? + s.xs.get(j)?)
+            Some(angle.get(i)?.to_f64() - s.x.get(j)? + s.xs.get(j)? + lag_of_floor)
         };
         let onset = placed.and_then(|(mid, lo, hi)| {
             let (mid, lo, hi) = (mid + lag, lo + lag, hi + lag);
@@ -88,7 +93,7 @@ impl Detector {
             // angle is halfway between the median's sample and the one before it.
             let before = |j: usize| interpolated(j.saturating_sub(1));
             let at_mid = interpolated(mid)?;
-            let angle = change_start_angle(angle, s, mid);
+            let angle = change_start_angle(angle, s, mid) + lag_of_floor;
             Some(PfOnset { index, angle, lo_angle: before(lo).unwrap_or(at_mid).min(angle), hi_angle: interpolated(hi)?.max(angle) })
         });
         Some(PfRow {
@@ -99,6 +104,55 @@ impl Detector {
             onset,
             friction: res.rate_track,
         })
+    }
+}
+
+/// How far the shaft lies past the interpolated angle `xs` on average. A floor-quantising
+/// encoder records the shaft anywhere in the step above its count, half a step behind on
+/// average; where `xs` is the recorded angle `x` itself or the engine's centred moving average
+/// of it (dense rises: `smooth_angle` in engine/analysis/mod.rs, over `2h + 1` samples, `h` the
+/// samples of one step, narrowed at the window's ends), the average keeps that lag: half the
+/// encoder's step. Where `xs` was interpolated between the count's rises (exact at each rise)
+/// or the angle is not quantised, 0. The detectors do not care (a constant angle offset moves
+/// no line's rate); an angle reported against the shaft's does.
+fn floor_lag(x: &[f64], xs: &[f64]) -> f64 {
+    let n = x.len().min(xs.len());
+    // The encoder's step: the smallest rise, or a half, third or quarter of it where the rises
+    // are whole multiples of that (a tool turning 2.4 steps a sample rises by two and three).
+    let smallest = x[..n].windows(2).map(|w| w[1] - w[0]).filter(|&d| d > 1e-9).fold(f64::INFINITY, f64::min);
+    let Some(grid) = (1..=4).map(|k| smallest / k as f64).find(|&r| {
+        r.is_finite()
+            && x[..n].windows(2).all(|w| {
+                let q = (w[1] - w[0]) / r;
+                (q - q.round()).abs() < 0.01
+            })
+    }) else {
+        return 0.0;
+    };
+    if x[..n] == xs[..n] {
+        return 0.5 * grid;
+    }
+    // The moving average's width as the engine sets it (`smooth_angle`).
+    let resolution = crate::physics::torque_rate::encoder_resolution(&x[..n]);
+    let step = (x[n - 1] - x[0]) / (n - 1) as f64;
+    if !(resolution > 0.0 && step > 0.0) {
+        return 0.0;
+    }
+    let half = ((resolution / step).ceil() as usize).min(32);
+    let mut prefix = Vec::with_capacity(n + 1);
+    prefix.push(0.0);
+    for v in &x[..n] {
+        prefix.push(prefix[prefix.len() - 1] + v);
+    }
+    let tolerance = 1e-9 * x[..n].iter().fold(0.0_f64, |m, v| m.max(v.abs())).max(1e-300);
+    let averaged = (0..n).all(|i| {
+        let h = half.min(i).min(n - 1 - i);
+        (xs[i] - (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64).abs() <= tolerance
+    });
+    if averaged {
+        0.5 * grid
+    } else {
+        0.0
     }
 }
 
@@ -180,7 +234,37 @@ fn beat_free_angle(x: &[f64], index: &[usize], xs: &[f64], out: &mut Vec<f64>) {
 
 #[cfg(test)]
 mod tests {
-    use super::beat_free_angle;
+    use super::{beat_free_angle, floor_lag};
+
+    /// The recorded angle of a floor-quantising encoder (0.1 deg) and its three-sample average
+    /// lag the shaft by half a step on average; an angle interpolated between the rises, or not
+    /// quantised, does not.
+    #[test]
+    fn the_floor_lag_is_half_a_step_where_counts_are_averaged() {
+        let n = 400;
+        // 1.37 steps a sample: rises of one and two steps, the floor error a sawtooth (the
+        // engine's average then spans three samples).
+        let truth: Vec<f64> = (0..n).map(|t| 0.1 * (0.41 + 1.37 * t as f64)).collect();
+        let x: Vec<f64> = truth.iter().map(|a| (a / 0.1 + 1e-9).floor() * 0.1).collect();
+        let lag = |v: &[f64]| truth.iter().zip(v).map(|(a, b)| a - b).sum::<f64>() / n as f64;
+        assert!((lag(&x) - 0.05).abs() < 0.005, "recorded lag {}", lag(&x));
+        assert!((floor_lag(&x, &x) - 0.05).abs() < 1e-12);
+        let averaged: Vec<f64> = (0..n).map(|i| {
+            let h = 1.min(i).min(n - 1 - i);
+            x[i - h..=i + h].iter().sum::<f64>() / (2 * h + 1) as f64
+        }).collect();
+        assert!((lag(&averaged) - 0.05).abs() < 0.005);
+        assert!((floor_lag(&x, &averaged) - 0.05).abs() < 1e-12);
+        // Any other interpolation: no lag assumed; unquantised angles: none.
+        let shifted: Vec<f64> = averaged.iter().map(|v| v + 0.03).collect();
+        assert_eq!(floor_lag(&x, &shifted), 0.0);
+        let smooth: Vec<f64> = (0..100).map(|t| 0.013 * t as f64 + 0.004 * (t as f64 / 3.0).sin()).collect();
+        assert_eq!(floor_lag(&smooth, &smooth), 0.0);
+        // Rises of two and three steps: the grid is half the smallest rise.
+        let coarse: Vec<f64> = (0..n).map(|t| ((0.41 + 2.37 * t as f64) + 1e-9).floor() * 0.1).collect();
+        assert!((floor_lag(&coarse, &coarse) - 0.05).abs() < 1e-12);
+        assert_eq!(floor_lag(&[], &[]), 0.0);
+    }
 
     /// The floor-quantised angle of a shaft at `speed` steps a sample from `phase`, steps 0.1 deg.
     fn recorded(n: usize, speed: f64, phase: f64) -> (Vec<f64>, Vec<f64>) {

@@ -334,7 +334,7 @@ pub fn encoder_resolution(x: &[f64]) -> f64 {
             d > 1e-9 && (q - q.round()).abs() >= 0.05
         })
     };
-    let fallback = if on_grid(smallest) { smallest } else { 0.0 };
+    let fallback = || if on_grid(smallest) { smallest } else { 0.0 };
     let mut grid = smallest;
     for _ in 0..8 {
         let Some(off) = off_grid(grid) else { return grid };
@@ -346,12 +346,12 @@ pub fn encoder_resolution(x: &[f64]) -> f64 {
             }
             (a, b) = (b, remainder);
             if b < smallest / 64.0 {
-                return fallback;
+                return fallback();
             }
         }
         grid = b;
     }
-    fallback
+    fallback()
 }
 
 /// Where the tool resumed after the last stop that the recorder did not sample: a tool that

@@ -9,7 +9,6 @@ use crate::detectors::gls_breakpoint::{gls_critical_value, gls_predictive_p_valu
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
 use crate::engine::traces::BreakTrace;
-use crate::physics::torque_rate::encoder_resolution;
 use crate::engine::Detector;
 
 use super::Scratch;
@@ -60,7 +59,7 @@ impl Detector {
         // clean curves with p <= 0.001 in 20,000 had |jump| = 0.75-1.9 G r). A break is only
         // credited when its jump exceeds `min_jump_steps` encoder steps (default 1.5), or when
         // it is large enough that a step cannot explain it ([`beyond_encoder_artefact`]).
-        let resolution = encoder_resolution(x);
+        let resolution = s.encoder_resolution;
         let (dx, dy) = (x[n - 1] - x[0], y[n - 1] - y[0]);
         let encoder_step = if dx > 0.0 { (dy / dx).abs() * resolution } else { 0.0 };
         let beyond_step = |jump: f64| encoder_step <= 0.0 || jump.abs() > breaks.min_jump_steps * encoder_step;

@@ -72,6 +72,11 @@ pub(super) struct Scratch {
     /// The angle of `x` with the encoder's quantisation averaged out: the regressor the line is
     /// fitted on (the torque follows the true angle, not the recorded steps).
     xs: Vec<f64>,
+    /// The encoder's grid in the window's recorded angle ([`encoder_resolution`], 0 where it
+    /// is not quantised) and whether `xs` is its centred moving average ([`smooth_angle`]):
+    /// found once, for the break scan's encoder-step check and the particle filter's angle.
+    encoder_resolution: f64,
+    angle_averaged: bool,
     /// Recorded angles just before the window (window coordinates), for [`smooth_angle`].
     context: Vec<f64>,
     /// `xs` averaged in time and whitened (weighted as `wx`): the CUSUM's block regressor
@@ -212,7 +217,7 @@ impl Scratch {
         if self.index.first() == Some(&window.start) {
             self.context.extend(angle[context..window.start].iter().map(|a| a.to_f64() - a0));
         }
-        smooth_angle(&self.context, &self.x, &self.index, n, &mut self.xs);
+        (self.encoder_resolution, self.angle_averaged) = smooth_angle(&self.context, &self.x, &self.index, n, &mut self.xs);
         // The noise is the channel's, the same before the window as in it, and the window alone
         // (a few hundred samples) leaves the autoregression too uncertain where it matters
         // most, near phi = 1: an error of 0.05 in phi = 0.85 leaves 1.8 times the variance a
@@ -586,13 +591,17 @@ fn quadratic_through(knots: &[(f64, f64)]) -> Option<(f64, nalgebra::Vector3<f64
 /// The moving average alone, capped at 65 samples, left most of a 0.5 deg encoder's sawtooth at
 /// 10 kHz (an encoder step every 14-100 samples as an HDT tool slows): 13 % false alarms on
 /// clean white-noise curves.
-fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut Vec<f64>) {
+///
+/// Returns the encoder's grid of `x[..n]` ([`encoder_resolution`]) and whether the result is
+/// that moving average.
+fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut Vec<f64>) -> (f64, bool) {
     out.clear();
     let resolution = encoder_resolution(&x[..n]);
+    let found = resolution;
     let step = if n > 1 { (x[n - 1] - x[0]) / (n - 1) as f64 } else { 0.0 };
     if !(resolution > 0.0 && step > 0.0) || index.len() < n {
         out.extend_from_slice(x);
-        return;
+        return (found, false);
     }
     // The rises of the count (a running maximum, so that an encoder dithering on an edge does
     // not make rises of its own), each at half a sample before the sample that shows it; the
@@ -745,7 +754,7 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut
             }
         }
         out.extend_from_slice(&x[m..]);
-        return;
+        return (found, false);
     }
     // Dense rises: averaged only where the quantisation error drifts, where the steps between
     // samples take two or more multiples of the encoder step r (an advance per sample that is
@@ -756,7 +765,7 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut
     // sharp change of speed (the tool braking at the target) would bend the angle.
     if !sawtooth(&x[..n], resolution) {
         out.extend_from_slice(x);
-        return;
+        return (found, false);
     }
     let half = ((resolution / step).ceil() as usize).min(32);
     // Within the window only: past it the tool brakes to the target, and an average across
@@ -771,6 +780,7 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut
         (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64
     }));
     out.extend_from_slice(&x[n..]);
+    (found, true)
 }
 
 impl Detector {

@@ -47,7 +47,7 @@ impl Detector {
         let mut wx_fit = Vec::new();
         // The angle without the encoder's beat ([`beat_free_angle`]), in the test, the onset's
         // direction and the pivot alike.
-        beat_free_angle(&s.x[..n], &s.index[..n], &s.xs[..n], &mut angle_fit);
+        beat_free_angle(&s.x[..n], &s.index[..n], &s.xs[..n], s.encoder_resolution, &mut angle_fit);
         let weighted_fit: Vec<f64> = angle_fit.iter().zip(&s.weighted).map(|(x, w)| x * w).collect();
         whiten(&weighted_fit, &s.noise.coefficients, &mut wx_fit);
         if n > wx_fit.len() {
@@ -80,7 +80,7 @@ impl Detector {
         // shaft by half an encoder step ([`floor_lag`]): uncorrected, the change angles of the
         // built-in simulator's CSDT alarms lay a median 0.04-0.05 deg early and their interval
         // ended short of the onset in 42-60 % (benches/README.md, pf section).
-        let lag_of_floor = floor_lag(&s.x[..n], &s.xs[..n]);
+        let lag_of_floor = floor_lag(&s.x[..n], &s.xs[..n], s.angle_averaged);
         let interpolated = |j: usize| -> Option<f64> {
             let i = *s.index.get(j)?;
             Some(angle.get(i)?.to_f64() - s.x.get(j)? + s.xs.get(j)? + lag_of_floor)
@@ -110,12 +110,11 @@ impl Detector {
 /// How far the shaft lies past the interpolated angle `xs` on average. A floor-quantising
 /// encoder records the shaft anywhere in the step above its count, half a step behind on
 /// average; where `xs` is the recorded angle `x` itself or the engine's centred moving average
-/// of it (dense rises: `smooth_angle` in engine/analysis/mod.rs, over `2h + 1` samples, `h` the
-/// samples of one step, narrowed at the window's ends), the average keeps that lag: half the
-/// encoder's step. Where `xs` was interpolated between the count's rises (exact at each rise)
-/// or the angle is not quantised, 0. The detectors do not care (a constant angle offset moves
-/// no line's rate); an angle reported against the shaft's does.
-fn floor_lag(x: &[f64], xs: &[f64]) -> f64 {
+/// of it (`averaged`: dense rises, `smooth_angle` in engine/analysis/mod.rs), the average keeps
+/// that lag: half the encoder's step. Where `xs` was interpolated between the count's rises
+/// (exact at each rise) or the angle is not quantised, 0. The detectors do not care (a constant
+/// angle offset moves no line's rate); an angle reported against the shaft's does.
+fn floor_lag(x: &[f64], xs: &[f64], averaged: bool) -> f64 {
     let n = x.len().min(xs.len());
     // The encoder's step: the smallest rise, or a half, third or quarter of it where the rises
     // are whole multiples of that (a tool turning 2.4 steps a sample rises by two and three).
@@ -129,27 +128,7 @@ fn floor_lag(x: &[f64], xs: &[f64]) -> f64 {
     }) else {
         return 0.0;
     };
-    if x[..n] == xs[..n] {
-        return 0.5 * grid;
-    }
-    // The moving average's width as the engine sets it (`smooth_angle`).
-    let resolution = crate::physics::torque_rate::encoder_resolution(&x[..n]);
-    let step = (x[n - 1] - x[0]) / (n - 1) as f64;
-    if !(resolution > 0.0 && step > 0.0) {
-        return 0.0;
-    }
-    let half = ((resolution / step).ceil() as usize).min(32);
-    let mut prefix = Vec::with_capacity(n + 1);
-    prefix.push(0.0);
-    for v in &x[..n] {
-        prefix.push(prefix[prefix.len() - 1] + v);
-    }
-    let tolerance = 1e-9 * x[..n].iter().fold(0.0_f64, |m, v| m.max(v.abs())).max(1e-300);
-    let averaged = (0..n).all(|i| {
-        let h = half.min(i).min(n - 1 - i);
-        (xs[i] - (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64).abs() <= tolerance
-    });
-    if averaged {
+    if averaged || x[..n] == xs[..n] {
         0.5 * grid
     } else {
         0.0
@@ -169,7 +148,9 @@ const BEAT_LINE_STEPS: f64 = 2.0;
 /// The angle the filter regresses on: the interpolated angle `xs`, except in runs of
 /// consecutive samples (`index`) where the recorded angle `x` rises by the same whole number of
 /// encoder steps (one or more) from nearly every sample to the next, where it is the
-/// least-squares line in time through `xs`.
+/// least-squares line in time through `xs`. `step`: the encoder's grid in `x`
+/// ([`encoder_resolution`](crate::physics::torque_rate::encoder_resolution); nothing is changed
+/// where it is 0).
 ///
 /// Why: where the tool turns by close to a whole number of encoder steps a sample, the count
 /// rises by that number sample after sample and the encoder's floor error drifts through a
@@ -184,11 +165,10 @@ const BEAT_LINE_STEPS: f64 = 2.0;
 /// and the encoder tells no more than that there. (Within one step the rule kept 7 of the 44
 /// beat curves of seed 6005 alarming instead of 3: the interpolated angle strays a little past a
 /// step about the wraps.)
-fn beat_free_angle(x: &[f64], index: &[usize], xs: &[f64], out: &mut Vec<f64>) {
+fn beat_free_angle(x: &[f64], index: &[usize], xs: &[f64], step: f64, out: &mut Vec<f64>) {
     out.clear();
     out.extend_from_slice(xs);
     let n = x.len().min(index.len()).min(xs.len());
-    let step = crate::physics::torque_rate::encoder_resolution(&x[..n]);
     if !(step > 0.0) {
         return;
     }
@@ -235,6 +215,7 @@ fn beat_free_angle(x: &[f64], index: &[usize], xs: &[f64], out: &mut Vec<f64>) {
 #[cfg(test)]
 mod tests {
     use super::{beat_free_angle, floor_lag};
+    use crate::physics::torque_rate::encoder_resolution;
 
     /// The recorded angle of a floor-quantising encoder (0.1 deg) and its three-sample average
     /// lag the shaft by half a step on average; an angle interpolated between the rises, or not
@@ -248,22 +229,28 @@ mod tests {
         let x: Vec<f64> = truth.iter().map(|a| (a / 0.1 + 1e-9).floor() * 0.1).collect();
         let lag = |v: &[f64]| truth.iter().zip(v).map(|(a, b)| a - b).sum::<f64>() / n as f64;
         assert!((lag(&x) - 0.05).abs() < 0.005, "recorded lag {}", lag(&x));
-        assert!((floor_lag(&x, &x) - 0.05).abs() < 1e-12);
+        assert!((floor_lag(&x, &x, false) - 0.05).abs() < 1e-12);
         let averaged: Vec<f64> = (0..n).map(|i| {
             let h = 1.min(i).min(n - 1 - i);
             x[i - h..=i + h].iter().sum::<f64>() / (2 * h + 1) as f64
         }).collect();
         assert!((lag(&averaged) - 0.05).abs() < 0.005);
-        assert!((floor_lag(&x, &averaged) - 0.05).abs() < 1e-12);
+        // The engine's own smoothing takes that average here, and says so.
+        let index: Vec<usize> = (0..n).collect();
+        let mut smoothed = Vec::new();
+        let (resolution, is_average) = super::super::smooth_angle(&[], &x, &index, n, &mut smoothed);
+        assert!((resolution - 0.1).abs() < 1e-12 && is_average);
+        assert!(smoothed.iter().zip(&averaged).all(|(a, b)| (a - b).abs() < 1e-9));
+        assert!((floor_lag(&x, &smoothed, is_average) - 0.05).abs() < 1e-12);
         // Any other interpolation: no lag assumed; unquantised angles: none.
         let shifted: Vec<f64> = averaged.iter().map(|v| v + 0.03).collect();
-        assert_eq!(floor_lag(&x, &shifted), 0.0);
+        assert_eq!(floor_lag(&x, &shifted, false), 0.0);
         let smooth: Vec<f64> = (0..100).map(|t| 0.013 * t as f64 + 0.004 * (t as f64 / 3.0).sin()).collect();
-        assert_eq!(floor_lag(&smooth, &smooth), 0.0);
+        assert_eq!(floor_lag(&smooth, &smooth, false), 0.0);
         // Rises of two and three steps: the grid is half the smallest rise.
         let coarse: Vec<f64> = (0..n).map(|t| ((0.41 + 2.37 * t as f64) + 1e-9).floor() * 0.1).collect();
-        assert!((floor_lag(&coarse, &coarse) - 0.05).abs() < 1e-12);
-        assert_eq!(floor_lag(&[], &[]), 0.0);
+        assert!((floor_lag(&coarse, &coarse, false) - 0.05).abs() < 1e-12);
+        assert_eq!(floor_lag(&[], &[], false), 0.0);
     }
 
     /// The floor-quantised angle of a shaft at `speed` steps a sample from `phase`, steps 0.1 deg.
@@ -284,7 +271,7 @@ mod tests {
         let (truth, x) = recorded(n, 1.02, 0.3);
         let index: Vec<usize> = (0..n).collect();
         let mut out = Vec::new();
-        beat_free_angle(&x, &index, &x, &mut out);
+        beat_free_angle(&x, &index, &x, encoder_resolution(&x), &mut out);
         let error = |v: &[f64]| -> (f64, f64) {
             let d: Vec<f64> = v.iter().zip(&truth).map(|(a, b)| a - b).collect();
             let mean = d.iter().sum::<f64>() / d.len() as f64;
@@ -299,29 +286,29 @@ mod tests {
         // The speed rising from 1.0 to 1.15 steps a sample halfway: more than nine rises in ten
         // are one step, but the angle leaves any one line by several; the interpolated angle stays.
         let ramp: Vec<f64> = (0..n).map(|t| 0.1 * ((0.3 + t as f64 + 0.15 * (t as f64 - 150.0).max(0.0)) + 1e-9).floor()).collect();
-        beat_free_angle(&ramp, &index, &ramp, &mut out);
+        beat_free_angle(&ramp, &index, &ramp, encoder_resolution(&ramp), &mut out);
         assert_eq!(out, ramp);
 
         let (_, mixed) = recorded(n, 1.37, 0.3);
-        beat_free_angle(&mixed, &index, &mixed, &mut out);
+        beat_free_angle(&mixed, &index, &mixed, encoder_resolution(&mixed), &mut out);
         assert_eq!(out, mixed);
 
         // A stop left out after sample 150: each run gets its own line.
         let gapped: Vec<usize> = (0..n).map(|k| if k < 150 { k } else { k + 40 }).collect();
         let (truth, x) = recorded(n + 40, 1.02, 0.7);
         let x: Vec<f64> = gapped.iter().map(|&k| x[k]).collect();
-        beat_free_angle(&x, &gapped, &x, &mut out);
+        beat_free_angle(&x, &gapped, &x, encoder_resolution(&x), &mut out);
         for (k, &i) in gapped.iter().enumerate() {
             assert!((out[k] - truth[i]).abs() < 0.06, "sample {k}: {} against {}", out[k], truth[i]);
         }
 
         // No grid, too short, empty: the interpolated angle back, no panic.
         let smooth: Vec<f64> = (0..100).map(|t| 0.013 * t as f64 + 0.004 * (t as f64 / 3.0).sin()).collect();
-        beat_free_angle(&smooth, &index[..100], &smooth, &mut out);
+        beat_free_angle(&smooth, &index[..100], &smooth, encoder_resolution(&smooth), &mut out);
         assert_eq!(out, smooth);
-        beat_free_angle(&x[..10], &index[..10], &x[..10], &mut out);
+        beat_free_angle(&x[..10], &index[..10], &x[..10], encoder_resolution(&x[..10]), &mut out);
         assert_eq!(out, x[..10].to_vec());
-        beat_free_angle(&[], &[], &[], &mut out);
+        beat_free_angle(&[], &[], &[], encoder_resolution(&[]), &mut out);
         assert!(out.is_empty());
     }
 }

@@ -301,6 +301,13 @@ pub fn block_stats_whitened(position: &[f64], x: &[f64], y: &[f64], n_blocks: us
 /// white noise, 4,000 curves) the 194 within 0.05 steps a sample below a whole number alarmed
 /// at 4.6 % (9; 2 on the same curves with a 0.001 deg encoder), the rest at 0.5 %.
 pub fn encoder_resolution(x: &[f64]) -> f64 {
+    encoder_resolution_at(x, 0.0)
+}
+
+/// [`encoder_resolution`] of angles `x` measured from `origin` (the recorded angles are
+/// `origin` plus `x`): single precision's rounding of the recorded angle is what the steps
+/// carry beside the encoder's counts, and it is set by the recorded angle's magnitude.
+pub fn encoder_resolution_at(x: &[f64], origin: f64) -> f64 {
     let mut smallest = f64::INFINITY;
     for w in x.windows(2) {
         let d = w[1] - w[0];
@@ -337,7 +344,7 @@ pub fn encoder_resolution(x: &[f64]) -> f64 {
     let fallback = || if on_grid(smallest) { smallest } else { 0.0 };
     let mut grid = smallest;
     for _ in 0..8 {
-        let Some(off) = off_grid(grid) else { return grid };
+        let Some(off) = off_grid(grid) else { return finer_count(x, origin, grid) };
         let (mut a, mut b) = (off.max(grid), off.min(grid));
         loop {
             let remainder = (a - (a / b).round() * b).abs();
@@ -346,12 +353,54 @@ pub fn encoder_resolution(x: &[f64]) -> f64 {
             }
             (a, b) = (b, remainder);
             if b < smallest / 64.0 {
-                return fallback();
+                return finer_count(x, origin, fallback());
             }
         }
         grid = b;
     }
-    fallback()
+    finer_count(x, origin, fallback())
+}
+
+/// The count of a fine encoder read at a low rate, under the grid `grid` that every step is a
+/// multiple of to within the grid test's tolerance (a twentieth of it). A tool turning 120.4
+/// counts of a 0.01 deg encoder a sample steps by 1.20 and 1.21 deg, and 1.21 is within 1 % of
+/// "one step" of 1.20: the grid came out as a whole sample's advance, and the break scan's
+/// encoder-step check then asked a break for a jump of 1.5 samples' worth of torque rise. No
+/// break passed it: the default rule raised no false alarm and no break alarm at all on
+/// CST curves at 500 Hz with a 0.01 deg encoder, on either generator (51 and 170 times the
+/// count), nor on half the independent generator's CST curves at 2 kHz. What tells the count
+/// is how consecutive steps differ: by whole counts (0, 1, now and then 2), where they differ
+/// by more than single precision leaves of an angle (angles are often stored as float32). The
+/// count is the median of the differences near the smallest of them, accepted when nine in ten
+/// differences (two at least) lie within a quarter count of a whole number of it. (Euclid's
+/// algorithm, as for the coarser grid, divides the float32 error of a one-count remainder into
+/// a grid of a hundred counts and more, and loses it.)
+fn finer_count(x: &[f64], origin: f64, grid: f64) -> f64 {
+    if !(grid > 0.0) {
+        return grid;
+    }
+    let scale = x.iter().fold(0.0_f64, |m, v| m.max((origin + v).abs()));
+    let float_noise = 4.0 * f64::from(f32::EPSILON) * scale;
+    let steps: Vec<f64> = x.windows(2).map(|w| w[1] - w[0]).filter(|&d| d > 1e-9).collect();
+    let mut differences: Vec<f64> = steps.windows(2).map(|w| (w[1] - w[0]).abs()).filter(|&d| d > 2.0 * float_noise).collect();
+    let Some(smallest) = differences.iter().copied().reduce(f64::min) else { return grid };
+    if smallest >= 0.5 * grid {
+        return grid;
+    }
+    let mut near: Vec<f64> = differences.iter().copied().filter(|&d| d < 1.5 * smallest).collect();
+    near.sort_by(f64::total_cmp);
+    let count = near[near.len() / 2];
+    let all = differences.len();
+    differences.retain(|&d| {
+        let q = d / count;
+        (q - q.round()).abs() < 0.25
+    });
+    let on_count = differences.len();
+    if on_count >= 2 && on_count * 10 >= 9 * all {
+        count
+    } else {
+        grid
+    }
 }
 
 /// Where the tool resumed after the last stop that the recorder did not sample: a tool that
@@ -627,6 +676,20 @@ mod tests {
             let r = encoder_resolution(&quantised(steps, 300));
             assert!((r - 0.1).abs() < 1e-9, "{steps} steps a sample: resolution {r}");
         }
+        // A fine encoder at a low rate: 120.4 and 339.6 counts of 0.01 deg a sample step by
+        // 1.20 / 1.21 and 3.39 / 3.40 deg, each within 5 % of the smaller. The grid is the count.
+        for steps in [120.4, 339.6, 85.3] {
+            let fine: Vec<f64> = (0..300).map(|i| ((1234.567 + 0.01 * steps * i as f64).div_euclid(0.01) * 0.01) as f32 as f64).collect();
+            let r = encoder_resolution(&fine);
+            assert!((r - 0.01).abs() < 1e-4, "{steps} counts of 0.01 deg a sample: resolution {r}");
+        }
+        // A window of a float32 recording near 1,900 deg, measured from its start: its steps of
+        // 34 counts differ by whole float32 units (1.2e-4 deg there), which are no encoder's
+        // count and which the window's own small angles do not show.
+        let origin = 1900.0_f64;
+        let recorded: Vec<f64> = (0..60).map(|i| ((origin + 0.1 * 34.02 * i as f64).div_euclid(0.1) * 0.1) as f32 as f64 - origin).collect();
+        let r = encoder_resolution_at(&recorded, origin);
+        assert!(r > 0.099, "34.02 counts of 0.1 deg a sample: resolution {r}");
         // A constant whole number of counts a sample: the step itself is a grid.
         let r = encoder_resolution(&quantised(3.0, 100));
         assert!(r > 0.0 && ((r / 0.1) - (r / 0.1).round()).abs() < 1e-6, "{r}");

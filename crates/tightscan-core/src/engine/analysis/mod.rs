@@ -20,7 +20,7 @@ use crate::engine::Detector;
 use crate::physics::phases::{find_phases, PhaseScratch, Phases, MIN_FIT_SAMPLES};
 use crate::detectors::noise::{estimate_noise_in, whiten, NoiseModel, NoiseScratch};
 use crate::physics::torque_rate::{
-    after_is_longer, difference_noise_sd, encoder_resolution, resumed_after_time_gap, stop_ranges, without_relaxation, RelaxationFree,
+    after_is_longer, difference_noise_sd, encoder_resolution_at, resumed_after_time_gap, stop_ranges, without_relaxation, RelaxationFree,
     BACK_ON_LINE_SDS, Blocks, ElasticWindow, WindowError,
 };
 
@@ -72,7 +72,7 @@ pub(super) struct Scratch {
     /// The angle of `x` with the encoder's quantisation averaged out: the regressor the line is
     /// fitted on (the torque follows the true angle, not the recorded steps).
     xs: Vec<f64>,
-    /// The encoder's grid in the window's recorded angle ([`encoder_resolution`], 0 where it
+    /// The encoder's grid in the window's recorded angle ([`encoder_resolution_at`], 0 where it
     /// is not quantised) and whether `xs` is its centred moving average ([`smooth_angle`]):
     /// found once, for the break scan's encoder-step check and the particle filter's angle.
     encoder_resolution: f64,
@@ -217,7 +217,7 @@ impl Scratch {
         if self.index.first() == Some(&window.start) {
             self.context.extend(angle[context..window.start].iter().map(|a| a.to_f64() - a0));
         }
-        (self.encoder_resolution, self.angle_averaged) = smooth_angle(&self.context, &self.x, &self.index, n, &mut self.xs);
+        (self.encoder_resolution, self.angle_averaged) = smooth_angle(&self.context, &self.x, &self.index, n, a0, &mut self.xs);
         // The noise is the channel's, the same before the window as in it, and the window alone
         // (a few hundred samples) leaves the autoregression too uncertain where it matters
         // most, near phi = 1: an error of 0.05 in phi = 0.85 leaves 1.8 times the variance a
@@ -592,11 +592,11 @@ fn quadratic_through(knots: &[(f64, f64)]) -> Option<(f64, nalgebra::Vector3<f64
 /// 10 kHz (an encoder step every 14-100 samples as an HDT tool slows): 13 % false alarms on
 /// clean white-noise curves.
 ///
-/// Returns the encoder's grid of `x[..n]` ([`encoder_resolution`]) and whether the result is
-/// that moving average.
-fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, out: &mut Vec<f64>) -> (f64, bool) {
+/// Returns the encoder's grid of `x[..n]` ([`encoder_resolution_at`]; `origin` is the recorded
+/// angle `x` is measured from) and whether the result is that moving average.
+fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, origin: f64, out: &mut Vec<f64>) -> (f64, bool) {
     out.clear();
-    let resolution = encoder_resolution(&x[..n]);
+    let resolution = encoder_resolution_at(&x[..n], origin);
     let found = resolution;
     let step = if n > 1 { (x[n - 1] - x[0]) / (n - 1) as f64 } else { 0.0 };
     if !(resolution > 0.0 && step > 0.0) || index.len() < n {
@@ -1041,7 +1041,7 @@ mod tests {
         let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
         let n = index.len();
         let mut out = Vec::new();
-        smooth_angle(&[], &recorded, &index, n, &mut out);
+        smooth_angle(&[], &recorded, &index, n, 0.0, &mut out);
         assert_eq!(out.len(), n);
         let errors: Vec<f64> = out.iter().zip(&truth).map(|(a, b)| a - b).collect();
         // Between the first rise and the last (the ends are extrapolated).
@@ -1071,7 +1071,7 @@ mod tests {
             let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
             let index: Vec<usize> = (before..before + n).collect();
             let mut out = Vec::new();
-            smooth_angle(&recorded[..before], &recorded[before..], &index, n, &mut out);
+            smooth_angle(&recorded[..before], &recorded[before..], &index, n, 0.0, &mut out);
             let worst = out.iter().zip(&truth[before..]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
             assert!(worst < 0.2 * r, "phase {phase}: interpolated angle off by {:.3} steps", worst / r);
         }
@@ -1092,7 +1092,7 @@ mod tests {
             let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
             let index: Vec<usize> = (before..before + n + tail).collect();
             let mut out = Vec::new();
-            smooth_angle(&recorded[..before], &recorded[before..], &index, n, &mut out);
+            smooth_angle(&recorded[..before], &recorded[before..], &index, n, 0.0, &mut out);
             let errors: Vec<f64> = out.iter().zip(&truth[before..]).map(|(a, b)| a - b).collect();
             let recorded_errors: Vec<f64> = recorded[before..].iter().zip(&truth[before..]).map(|(a, b)| a - b).collect();
             let spread = |e: &[f64]| e.iter().copied().fold(f64::NEG_INFINITY, f64::max) - e.iter().copied().fold(f64::INFINITY, f64::min);
@@ -1117,7 +1117,7 @@ mod tests {
         let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
         let index: Vec<usize> = (0..n).collect();
         let mut out = Vec::new();
-        smooth_angle(&[], &recorded, &index, n, &mut out);
+        smooth_angle(&[], &recorded, &index, n, 0.0, &mut out);
         assert_eq!(out.len(), n);
         let worst = |v: &[f64]| {
             let errors: Vec<f64> = v.iter().zip(&truth).map(|(a, b)| a - b).collect();
@@ -1133,7 +1133,7 @@ mod tests {
         );
         // A fine encoder (a rise at every sample) and a straight line pass unchanged.
         let line: Vec<f64> = (0..n).map(|i| 1.0 + 0.1 * i as f64).collect();
-        smooth_angle(&[], &line, &index, n, &mut out);
+        smooth_angle(&[], &line, &index, n, 0.0, &mut out);
         assert_eq!(out, line);
     }
 

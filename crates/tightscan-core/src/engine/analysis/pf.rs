@@ -238,7 +238,7 @@ mod tests {
         // The engine's own smoothing takes that average here, and says so.
         let index: Vec<usize> = (0..n).collect();
         let mut smoothed = Vec::new();
-        let (resolution, is_average) = super::super::smooth_angle(&[], &x, &index, n, &mut smoothed);
+        let (resolution, is_average) = super::super::smooth_angle(&[], &x, &index, n, 0.0, &mut smoothed);
         assert!((resolution - 0.1).abs() < 1e-12 && is_average);
         assert!(smoothed.iter().zip(&averaged).all(|(a, b)| (a - b).abs() < 1e-9));
         assert!((floor_lag(&x, &smoothed, is_average) - 0.05).abs() < 1e-12);

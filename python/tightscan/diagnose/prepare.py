@@ -211,6 +211,34 @@ class _Samples:
     # or an inertia does not depend on how they are estimated
     omega_raw: F64 | None = None
     alpha_raw: F64 | None = None
+    # the speed channel as recorded at the samples just before and just after each sample of the
+    # tightening [deg/s] (its own value at the first and last sample; a stop's samples, left out
+    # of the model, included): the speed between samples by linear interpolation, for a friction
+    # whose speed is not the one sampled with the torque (``speed_at_timing``)
+    omega_raw_prev: F64 | None = None
+    omega_raw_next: F64 | None = None
+
+
+def speed_at_timing(s: Any, shift: float) -> F64 | None:
+    """The speed channel as recorded, ``shift`` samples earlier (> 0) or later (< 0), within one
+    sample, by linear interpolation between neighbouring recorded samples [deg/s]; None without a
+    speed channel.
+
+    Why: the speed a friction law sees at a torque sample need not be the speed sampled with it.
+    The torque of a sample is the friction of the sliding that led to it (a transducer's
+    anti-aliasing or a converter's integration window, a simulation's last time step), and the
+    speed channel and the torque channel are not sampled at exactly the same instant. Where the
+    speed is steady the difference is nothing; at a braking corner the tool loses a third of its
+    speed from one sample to the next, and a Stribeck law, steepest at low speed, turns a sixth of
+    a sample into two noise sds of torque there (CSDT, 2 kHz)."""
+    if s.omega_raw is None or s.omega_raw_prev is None or s.omega_raw_next is None:
+        return None
+    w = np.asarray(s.omega_raw, dtype=np.float64)
+    if shift >= 0:
+        out: F64 = w - min(shift, 1.0) * (w - s.omega_raw_prev)
+    else:
+        out = w + min(-shift, 1.0) * (s.omega_raw_next - w)
+    return out
 
 
 def _window_sums(v: F64, lo: I64, hi: I64) -> F64:
@@ -352,12 +380,16 @@ def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_
     omega: F64 | None = None
     alpha: F64 | None = None
     omega_raw: F64 | None = None
+    omega_raw_prev: F64 | None = None
+    omega_raw_next: F64 | None = None
     alpha_raw: F64 | None = None
     speed_source = "none"
     if speed is not None:
         omega, alpha = _speed_channel(speed, clock, pos, start, end)
         speed_source = "speed channel"
         omega_raw = 6.0 * speed
+        omega_raw_prev = np.where(pos > 0, np.r_[omega_raw[:1], omega_raw[:-1]], omega_raw)
+        omega_raw_next = np.where(np.arange(len(pos)) < end, np.r_[omega_raw[1:], omega_raw[-1:]], omega_raw)
         if tt is not None:
             dts = np.r_[0.0, np.diff(tt)]
             good_dt = (pos > 0) & (dts > 0)
@@ -535,6 +567,8 @@ def _prepare(table: pa.Table, rundown_deg: float | None, min_samples: int, long_
         target=target[rows_final],
         omega_raw=sub(omega_raw),
         alpha_raw=sub(alpha_raw),
+        omega_raw_prev=sub(omega_raw_prev),
+        omega_raw_next=sub(omega_raw_next),
     )
 
 

@@ -122,8 +122,16 @@ const HEAVY_TAIL_LR: f64 = 5.41;
 /// Rexroth runs) none had a score below 1.58. Below 1, seven windows in ten, the fit (a
 /// third of a detect's instructions) is skipped.
 const HEAVY_TAIL_SCREEN: f64 = 1.0;
-/// Fewer whitened samples than this leave the tails too uncertain to act on.
+/// Fewer whitened samples than this, the window's front and the rundown's together, leave the
+/// tails too uncertain to act on.
 const MIN_TAIL_SAMPLES: usize = 30;
+/// Fewest whitened samples of the window's front whose own scale the Student t fit takes (the
+/// degrees of freedom are shared with the rundown's). The front alone had to hold
+/// [`MIN_TAIL_SAMPLES`]: a slow channel's windows (500 Hz, 21-37 samples under HDT) were never
+/// made Gaussian, and the start test took a t4 spike among their first samples for a change
+/// (built-in HDT, 500 Hz, 0.01 deg, t4: 4.3 % false alarms, 19 of 26 break alarms the start
+/// test's at p 1e-4 to 1e-20 on a straight noise-free line).
+const MIN_FRONT_SAMPLES: usize = 10;
 
 /// The part of the elastic window the detectors test, as a `too_short` status names it: the
 /// whole window, or the part a controller event leaves (a step change, or a pause of the tool
@@ -323,7 +331,11 @@ impl Scratch {
         // The front of the window only: a late friction change, which only the end test can
         // see, would itself look like a heavy tail of the whole window's residuals.
         let front = n.saturating_sub(crate::detectors::breakpoint::min_segment(n.saturating_sub(lag)));
-        if front < lag + MIN_TAIL_SAMPLES || front > self.wx.len() || self.wy.len() != self.wx.len() {
+        if front < lag + MIN_FRONT_SAMPLES
+            || front - lag + self.rundown_noise.len() < MIN_TAIL_SAMPLES
+            || front > self.wx.len()
+            || self.wy.len() != self.wx.len()
+        {
             return;
         }
         let (a, b) = crate::detectors::least_squares_line(&self.wx[lag..front], &self.wy[lag..front]);

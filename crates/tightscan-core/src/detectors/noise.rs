@@ -319,29 +319,127 @@ fn levinson(gamma: &[f64]) -> Vec<(Vec<f64>, f64)> {
 
 /// Autocovariances gamma_0..gamma_{len-1} of the AR model with innovation variance `v`.
 fn model_autocovariances(phi: &[f64], v: f64, len: usize) -> Vec<f64> {
-    // gamma_0..gamma_p solve gamma_h - sum_j phi_j gamma_|h-j| = v [h = 0] (h = 0..p); past p
-    // the Yule-Walker recursion gamma_h = sum_j phi_j gamma_{h-j} continues them.
     let p = phi.len();
-    let mut a = nalgebra::DMatrix::<f64>::zeros(p + 1, p + 1);
-    for h in 0..=p {
-        a[(h, h)] += 1.0;
-        for (j, c) in phi.iter().enumerate() {
-            a[(h, (h as isize - j as isize - 1).unsigned_abs())] -= c;
-        }
-    }
-    let mut rhs = nalgebra::DVector::<f64>::zeros(p + 1);
-    rhs[0] = v;
-    let Some(head) = a.lu().solve(&rhs) else {
-        return vec![0.0; len];
-    };
     // Reserved whole: grown push by push, the reallocations were a fifth of the moment solve.
-    let mut gamma: Vec<f64> = Vec::with_capacity(len);
-    gamma.extend(head.iter().copied().take(len));
+    let mut gamma: Vec<f64> = Vec::with_capacity(len.max(p + 1));
+    gamma.resize(p + 1, 0.0);
+    if !autocovariance_head(phi, v, &mut gamma) {
+        return vec![0.0; len];
+    }
+    gamma.truncate(len);
     while gamma.len() < len {
         let h = gamma.len();
         gamma.push(phi.iter().enumerate().map(|(j, c)| c * gamma[h - 1 - j]).sum());
     }
     gamma
+}
+
+/// [`autocovariance_head`] in an `N x N` matrix (order `N - 1`); a macro, since nalgebra's LU
+/// of a matrix of fixed size takes the size as a type, not a const generic.
+macro_rules! autocovariance_head_of {
+    ($n:literal, $phi:expr, $v:expr, $head:expr) => {{
+        let (phi, v, head): (&[f64], f64, &mut [f64]) = ($phi, $v, $head);
+        let mut a = nalgebra::SMatrix::<f64, $n, $n>::zeros();
+        for h in 0..$n {
+            a[(h, h)] += 1.0;
+            for (j, c) in phi.iter().enumerate() {
+                a[(h, (h as isize - j as isize - 1).unsigned_abs())] -= c;
+            }
+        }
+        let mut rhs = nalgebra::SVector::<f64, $n>::zeros();
+        rhs[0] = v;
+        match a.lu().solve(&rhs) {
+            Some(solution) => {
+                head.iter_mut().zip(solution.iter()).for_each(|(h, s)| *h = *s);
+                true
+            }
+            None => false,
+        }
+    }};
+}
+
+/// gamma_0..gamma_p of the AR model `phi` with innovation variance `v`, the start of
+/// [`model_autocovariances`], into `head` (p + 1 long): they solve
+/// gamma_h - sum_j phi_j gamma_|h-j| = v [h = 0] (h = 0..p); past p the Yule-Walker recursion
+/// gamma_h = sum_j phi_j gamma_{h-j} continues them. False where the system is singular.
+fn autocovariance_head(phi: &[f64], v: f64, head: &mut [f64]) -> bool {
+    // The orders the noise fit uses in matrices of fixed size: nalgebra's LU is the same
+    // generic code for either storage (the same bits), without the heap matrices that were
+    // most of a small solve's cost (2,000 instructions, 65,000 solves a 500-curve batch).
+    match phi.len() {
+        0 => autocovariance_head_of!(1, phi, v, head),
+        1 => autocovariance_head_of!(2, phi, v, head),
+        2 => autocovariance_head_of!(3, phi, v, head),
+        3 => autocovariance_head_of!(4, phi, v, head),
+        4 => autocovariance_head_of!(5, phi, v, head),
+        p => {
+            let mut a = nalgebra::DMatrix::<f64>::zeros(p + 1, p + 1);
+            for h in 0..=p {
+                a[(h, h)] += 1.0;
+                for (j, c) in phi.iter().enumerate() {
+                    a[(h, (h as isize - j as isize - 1).unsigned_abs())] -= c;
+                }
+            }
+            let mut rhs = nalgebra::DVector::<f64>::zeros(p + 1);
+            rhs[0] = v;
+            let Some(solution) = a.lu().solve(&rhs) else { return false };
+            head.iter_mut().zip(solution.iter()).for_each(|(h, s)| *h = *s);
+            true
+        }
+    }
+}
+
+/// Most models [`expected_lockstep`] evaluates side by side.
+const LOCKSTEP: usize = 8;
+
+/// `sum_k weights[h][k] gamma_k` at lags `h = 0..=p` for each of `models` (`(phi, v)`, all of
+/// order `p`, at most [`LOCKSTEP`]), gamma of length `len` ([`model_autocovariances`]), into
+/// `out[m][h]`: the same bits as one model at a time (every sum in the same order, from
+/// -0.0 as `Iterator::sum` starts), but the autocovariance recursions and weighted sums of
+/// the models run side by side. One at a time, each recursion step and each addition waited
+/// on the previous one: the moment solve's evaluations were a sixth of a detect's
+/// instructions and more of its time.
+fn expected_lockstep<const L: usize>(models: &[(Vec<f64>, f64)], weights: &[Vec<f64>], len: usize, out: &mut [Vec<f64>]) {
+    let p = models.first().map_or(0, |m| m.0.len()).min(MAX_AR_ORDER);
+    let mut gamma = vec![[0.0; L]; len];
+    // Models whose head is singular keep gamma 0 throughout.
+    let mut live = [false; L];
+    let mut phi = [[0.0; MAX_AR_ORDER]; L];
+    for (l, (c, v)) in models.iter().enumerate().take(L) {
+        let mut head = [0.0; MAX_AR_ORDER + 1];
+        if !autocovariance_head(c, *v, &mut head[..=p]) {
+            continue;
+        }
+        live[l] = true;
+        for (g, h) in gamma.iter_mut().zip(&head[..=p]) {
+            g[l] = *h;
+        }
+        phi[l].iter_mut().zip(c).for_each(|(a, b)| *a = *b);
+    }
+    for h in p + 1..len {
+        let mut next = [-0.0; L];
+        for j in 0..p {
+            let past = gamma[h - 1 - j];
+            for l in 0..L {
+                next[l] += phi[l][j] * past[l];
+            }
+        }
+        for l in (0..L).filter(|&l| !live[l]) {
+            next[l] = 0.0;
+        }
+        gamma[h] = next;
+    }
+    for (h, w) in weights.iter().enumerate().take(p + 1) {
+        let mut sums = [-0.0; L];
+        for (c, g) in w.iter().zip(gamma.iter()) {
+            for l in 0..L {
+                sums[l] += c * g[l];
+            }
+        }
+        for (o, s) in out.iter_mut().zip(sums) {
+            o[h] = s;
+        }
+    }
 }
 
 /// `c[h][k]`: expected lag-h residual product sum per pair, per unit of gamma_k, for residuals
@@ -642,11 +740,14 @@ fn gain_log_se_by(blocks: &[(Vec<f64>, Vec<f64>)], first_segment: usize, fit: (&
         let f: Vec<f64> = expected.iter().zip(&gamma).map(|(e, o)| (e - o) / equations.scale).collect();
         let lu = equations.jacobian(&theta, &f).lu();
         let mut estimates = Vec::with_capacity(groups);
-        for g in 0..groups {
-            let Some(observed) = left_out(g) else { continue };
-            let mut t = theta.clone();
-            let mut misfit: Vec<f64> = expected.iter().zip(&observed).map(|(e, o)| (e - o) / equations.scale).collect();
-            for _ in 0..2 {
+        // The groups step together (their moments evaluated side by side,
+        // [`MomentEquations::expected_each`]); each group's arithmetic is its own.
+        let observed: Vec<Vec<f64>> = (0..groups).filter_map(left_out).collect();
+        let mut ts = vec![theta.clone(); observed.len()];
+        let mut misfits: Vec<Vec<f64>> =
+            observed.iter().map(|o| expected.iter().zip(o).map(|(e, o)| (e - o) / equations.scale).collect()).collect();
+        for _ in 0..2 {
+            for (t, misfit) in ts.iter_mut().zip(&misfits) {
                 let delta = lu.solve(&nalgebra::DVector::from_iterator(p + 1, misfit.iter().map(|v| -v)))?;
                 t.iter_mut().zip(delta.iter()).enumerate().for_each(|(j, (a, d))| {
                     *a += d;
@@ -654,16 +755,19 @@ fn gain_log_se_by(blocks: &[(Vec<f64>, Vec<f64>)], first_segment: usize, fit: (&
                         *a = a.clamp(-equations.limit, equations.limit);
                     }
                 });
-                let e = equations.expected(&t);
-                misfit = e.iter().zip(&observed).map(|(e, o)| (e - o) / equations.scale).collect();
             }
+            for ((e, o), misfit) in equations.expected_each(&ts).iter().zip(&observed).zip(misfits.iter_mut()) {
+                *misfit = e.iter().zip(o).map(|(e, o)| (e - o) / equations.scale).collect();
+            }
+        }
+        for ((t, observed), misfit) in ts.iter().zip(&observed).zip(&misfits) {
             // Near the unit root ln(1 - sum phi) bends fast and the chord steps fall short:
             // there the group is solved to the end from where they got.
-            let model = equations.model(&t);
+            let model = equations.model(t);
             let phi_g = if misfit.iter().map(|v| v * v).sum::<f64>() < CHORD_TOLERANCE {
                 model.0
             } else {
-                solve_moments(&observed, &model, weights, block).0
+                solve_moments(observed, &model, weights, block).0
             };
             estimates.push(log_gain(&phi_g));
         }
@@ -803,6 +907,31 @@ impl<'a> MomentEquations<'a> {
         (0..=self.order()).map(|h| self.weights[h].iter().zip(&gamma).map(|(c, g)| c * g).sum::<f64>()).collect()
     }
 
+    /// [`Self::expected`] of each of `thetas`, the same bits, evaluated side by side
+    /// ([`expected_lockstep`]).
+    fn expected_each(&self, thetas: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        let p = self.order();
+        if p > MAX_AR_ORDER {
+            return thetas.iter().map(|t| self.expected(t)).collect();
+        }
+        let mut out = vec![vec![0.0; p + 1]; thetas.len()];
+        let models: Vec<(Vec<f64>, f64)> = thetas.iter().map(|t| self.model(t)).collect();
+        let (w, len) = (self.weights, self.block);
+        for (m, o) in models.chunks(LOCKSTEP).zip(out.chunks_mut(LOCKSTEP)) {
+            match m.len() {
+                1 => expected_lockstep::<1>(m, w, len, o),
+                2 => expected_lockstep::<2>(m, w, len, o),
+                3 => expected_lockstep::<3>(m, w, len, o),
+                4 => expected_lockstep::<4>(m, w, len, o),
+                5 => expected_lockstep::<5>(m, w, len, o),
+                6 => expected_lockstep::<6>(m, w, len, o),
+                7 => expected_lockstep::<7>(m, w, len, o),
+                _ => expected_lockstep::<LOCKSTEP>(m, w, len, o),
+            }
+        }
+        out
+    }
+
     fn misfit(&self, theta: &[f64]) -> Vec<f64> {
         self.expected(theta).iter().zip(self.observed).map(|(e, o)| (e - o) / self.scale).collect()
     }
@@ -812,10 +941,16 @@ impl<'a> MomentEquations<'a> {
         let p = self.order();
         let step = 1e-6;
         let mut jac = nalgebra::DMatrix::<f64>::zeros(p + 1, p + 1);
-        for j in 0..=p {
-            let mut t = theta.to_vec();
-            t[j] += step;
-            for (i, v) in self.misfit(&t).iter().enumerate() {
+        let stepped: Vec<Vec<f64>> = (0..=p)
+            .map(|j| {
+                let mut t = theta.to_vec();
+                t[j] += step;
+                t
+            })
+            .collect();
+        for (j, expected) in self.expected_each(&stepped).iter().enumerate() {
+            for (i, (e, o)) in expected.iter().zip(self.observed).enumerate() {
+                let v = (e - o) / self.scale;
                 jac[(i, j)] = (v - f[i]) / step;
             }
         }
@@ -832,13 +967,18 @@ const MAX_REFLECTION: f64 = 0.995;
 /// reflections inside (-1, 1) give a stationary model.
 fn coefficients_from_reflections(reflections: &[f64]) -> Vec<f64> {
     let mut phi: Vec<f64> = Vec::with_capacity(reflections.len());
-    for (k, r) in reflections.iter().enumerate() {
-        let mut next = vec![0.0; k + 1];
-        for j in 0..k {
-            next[j] = phi[j] - r * phi[k - 1 - j];
+    for (k, &r) in reflections.iter().enumerate() {
+        // next_j = phi_j - r phi_{k-1-j}, in place: each pair (j, k-1-j) from its old values.
+        for j in 0..k / 2 {
+            let (a, b) = (phi[j], phi[k - 1 - j]);
+            phi[j] = a - r * b;
+            phi[k - 1 - j] = b - r * a;
         }
-        next[k] = *r;
-        phi = next;
+        if k % 2 == 1 {
+            let a = phi[k / 2];
+            phi[k / 2] = a - r * a;
+        }
+        phi.push(r);
     }
     phi
 }

@@ -241,36 +241,52 @@ fn quadratic_residuals(x: &[f64], y: &[f64], out: &mut Vec<f64>, scratch: &mut Q
     let mean = x.iter().sum::<f64>() / m as f64;
     let span = x.iter().map(|v| (v - mean).abs()).fold(0.0, f64::max);
     let scale = if span > 0.0 { span } else { 1.0 };
-    let QuadraticScratch { u, basis } = scratch;
+    let QuadraticScratch { u, basis, basis_u, found } = scratch;
     u.clear();
     u.extend(x.iter().map(|v| (v - mean) / scale));
-    let mut found = 0;
-    for k in 0..LOCAL_TERMS {
-        let (done, rest) = basis.split_at_mut(found);
-        let Some(q) = rest.first_mut() else { break };
-        q.clear();
-        q.extend(u.iter().map(|&v| power(v, k)));
-        for b in done.iter() {
-            let dot: f64 = q.iter().zip(b).map(|(a, c)| a * c).sum();
-            q.iter_mut().zip(b).for_each(|(a, c)| *a -= dot * c);
+    // The basis depends on `u` alone, and the noise model's blocks (sample numbers, one length)
+    // all have the same `u` to the bit: it is built again only where `u` differs from the one
+    // it was built for.
+    let same = basis_u.len() == u.len() && basis_u.iter().zip(u.iter()).all(|(a, b)| a.to_bits() == b.to_bits());
+    if !same {
+        *found = 0;
+        for k in 0..LOCAL_TERMS {
+            let (done, rest) = basis.split_at_mut(*found);
+            let Some(q) = rest.first_mut() else { break };
+            q.clear();
+            q.extend(u.iter().map(|&v| power(v, k)));
+            for b in done.iter() {
+                let dot: f64 = q.iter().zip(b).map(|(a, c)| a * c).sum();
+                q.iter_mut().zip(b).for_each(|(a, c)| *a -= dot * c);
+            }
+            let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if !(norm > 1e-12) {
+                continue;
+            }
+            q.iter_mut().for_each(|v| *v /= norm);
+            *found += 1;
         }
-        let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if !(norm > 1e-12) {
-            continue;
-        }
-        q.iter_mut().for_each(|v| *v /= norm);
+        basis_u.clear();
+        basis_u.extend_from_slice(u);
+    }
+    // Each term taken out of `out` in turn, as the basis was built (the terms do not depend
+    // on `out`, so building them first changes no arithmetic).
+    for q in &basis[..*found] {
         let dot: f64 = out.iter().zip(q.iter()).map(|(a, c)| a * c).sum();
         out.iter_mut().zip(q.iter()).for_each(|(a, c)| *a -= dot * c);
-        found += 1;
     }
 }
 
 /// Buffers of [`quadratic_residuals`] (the scaled abscissa and the orthonormal basis), reused
-/// from block to block: four allocations a block were a tenth of its cost.
+/// from block to block: four allocations a block were a tenth of its cost, and the basis's
+/// Gram-Schmidt most of the rest.
 #[derive(Clone, Debug, Default)]
 struct QuadraticScratch {
     u: Vec<f64>,
     basis: [Vec<f64>; LOCAL_TERMS],
+    /// The `u` the first `found` vectors of `basis` are of.
+    basis_u: Vec<f64>,
+    found: usize,
 }
 
 /// `v^k` for the terms of the local quadratic (k < 3), as `powi` computes it (1, v, v * v: the

@@ -113,6 +113,9 @@ pub fn episode_scan(x: &[f64], y: &[f64], transients: &[usize], scratch: &mut Ve
     Some(EpisodeScan { statistic, start: taken[0].k1, end: taken[0].k2, level, count: used, onset })
 }
 
+/// Candidate ends of one start that [`greedy_episodes`] computes side by side.
+const EPISODE_CHUNK: usize = 8;
+
 type Greedy = ([f64; MAX_EPISODES], [Taken; MAX_EPISODES], f64, usize);
 
 /// The greedy search of [`episode_scan`]: the sup-LR statistic with 1, 2, ... stretches, the
@@ -224,15 +227,39 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
             // (`to` below `from`: nothing admissible from k1.)
             let to = (i + 1 + positions[i + 1..].partition_point(|&k2| k2 <= last && k2 < below)).max(from);
             let ((cx, ce), k1_f) = (sums[i], positions_f[i]);
-            for (j, (&k2_f, &(sx, se))) in positions_f[from..to].iter().zip(&sums[from..to]).enumerate() {
-                let s1 = k2_f - k1_f;
-                let (norm, along) = project(s1, sx - cx, se - ce);
-                let numerator = along * along;
-                if norm > 1e-9 * s1 && (best.is_none() || numerator * best_norm > best_numerator * norm) {
-                    best = Some((i, from + j));
-                    (best_numerator, best_norm) = (numerator, norm);
+            // In chunks: the candidates' terms side by side (they vectorise), and the chunk
+            // looked at one by one only where one of them beats the best so far (rarely, once
+            // a good stretch is found). A chunk none of which beats it would have changed
+            // nothing, so the best is the same, ties and order included.
+            let (k2s, ends) = (&positions_f[from..to], &sums[from..to]);
+            let (chunks, rest) = (k2s.chunks_exact(EPISODE_CHUNK), ends.chunks_exact(EPISODE_CHUNK));
+            let first_rest = from + k2s.len() - chunks.remainder().len();
+            let (rest_k2s, rest_ends) = (chunks.remainder(), rest.remainder());
+            for (c, (k2s, ends)) in chunks.zip(rest).enumerate() {
+                let (mut s1, mut norm, mut numerator) = ([0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK]);
+                for l in 0..EPISODE_CHUNK {
+                    s1[l] = k2s[l] - k1_f;
+                    let (nm, along) = project(s1[l], ends[l].0 - cx, ends[l].1 - ce);
+                    norm[l] = nm;
+                    numerator[l] = along * along;
+                }
+                let beats = (0..EPISODE_CHUNK).fold(best.is_none(), |any, l| {
+                    any | ((norm[l] > 1e-9 * s1[l]) & (numerator[l] * best_norm > best_numerator * norm[l]))
+                });
+                if beats {
+                    let first = from + c * EPISODE_CHUNK;
+                    take_better(&mut best, (&mut best_numerator, &mut best_norm), (i, first), (&s1, &norm, &numerator));
                 }
             }
+            let (mut s1, mut norm, mut numerator) = ([0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK]);
+            for (l, (&k2_f, &(sx, se))) in rest_k2s.iter().zip(rest_ends).enumerate() {
+                s1[l] = k2_f - k1_f;
+                let (nm, along) = project(s1[l], sx - cx, se - ce);
+                norm[l] = nm;
+                numerator[l] = along * along;
+            }
+            let r = rest_k2s.len();
+            take_better(&mut best, (&mut best_numerator, &mut best_norm), (i, first_rest), (&s1[..r], &norm[..r], &numerator[..r]));
         }
         let Some((i, j)) = best else { break };
         let (k1, k2) = (positions[i], positions[j]);
@@ -263,6 +290,18 @@ fn greedy_episodes(x: &[f64], y: &[f64], transients: &[usize], further_from: f64
         found = pass + 1;
     }
     (found > 0).then_some((lrs, taken, first_level, found))
+}
+
+/// The candidates `(s1, norm, numerator)` of start `i` and ends from grid index `first` on, one
+/// by one: each that beats the best so far (`best`, its reduction's numerator and norm)
+/// becomes it, as [`greedy_episodes`]'s scan takes them.
+fn take_better(best: &mut Option<(usize, usize)>, (best_numerator, best_norm): (&mut f64, &mut f64), (i, first): (usize, usize), (s1, norm, numerator): (&[f64], &[f64], &[f64])) {
+    for (j, ((&s1, &norm), &numerator)) in s1.iter().zip(norm).zip(numerator).enumerate() {
+        if norm > 1e-9 * s1 && (best.is_none() || numerator * *best_norm > *best_numerator * norm) {
+            *best = Some((i, first + j));
+            (*best_numerator, *best_norm) = (numerator, norm);
+        }
+    }
 }
 
 /// The episode end positions for n samples, as their count and the i-th: every position 0..=n

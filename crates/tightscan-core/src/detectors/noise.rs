@@ -141,7 +141,7 @@ fn local_autocovariances(
     sd_slope: f64,
     scratch: &mut NoiseScratch,
 ) -> Option<Vec<f64>> {
-    let NoiseScratch { residual, blocks: kept, first_segment_blocks, .. } = scratch;
+    let NoiseScratch { residual, blocks: kept, first_segment_blocks, quadratic, .. } = scratch;
     let n = x.len().min(y.len());
     let blocks = segments
         .iter()
@@ -153,7 +153,7 @@ fn local_autocovariances(
     let mut per_block: Vec<(Vec<f64>, Vec<f64>, bool)> = Vec::with_capacity(n / block);
     for (segment, (xs, ys, _)) in blocks {
         let m = xs.len() as f64;
-        quadratic_residuals(xs, ys, residual);
+        quadratic_residuals(xs, ys, residual, quadratic);
         // Noise that grows with the torque: each block on the scale of unit noise, so that the
         // loud blocks near the target neither dominate the pooled sums (leaving a few blocks'
         // worth of evidence: phi 0.85 spread over 0.78-0.88 from 7,000 samples at 10 kHz) nor
@@ -231,7 +231,7 @@ const LOCAL_TERMS: usize = 3;
 
 /// Residuals of the least-squares quadratic in `x` through `y`, into `out` (Gram-Schmidt on
 /// 1, x, x^2 centred and scaled, so long angle spans lose no digits).
-fn quadratic_residuals(x: &[f64], y: &[f64], out: &mut Vec<f64>) {
+fn quadratic_residuals(x: &[f64], y: &[f64], out: &mut Vec<f64>, scratch: &mut QuadraticScratch) {
     out.clear();
     out.extend_from_slice(y);
     let m = x.len();
@@ -241,23 +241,52 @@ fn quadratic_residuals(x: &[f64], y: &[f64], out: &mut Vec<f64>) {
     let mean = x.iter().sum::<f64>() / m as f64;
     let span = x.iter().map(|v| (v - mean).abs()).fold(0.0, f64::max);
     let scale = if span > 0.0 { span } else { 1.0 };
-    let u: Vec<f64> = x.iter().map(|v| (v - mean) / scale).collect();
-    let mut basis: Vec<Vec<f64>> = Vec::with_capacity(LOCAL_TERMS);
-    for k in 0..LOCAL_TERMS {
-        let mut q: Vec<f64> = u.iter().map(|&v| power(v, k)).collect();
-        for b in &basis {
-            let dot: f64 = q.iter().zip(b).map(|(a, c)| a * c).sum();
-            q.iter_mut().zip(b).for_each(|(a, c)| *a -= dot * c);
+    let QuadraticScratch { u, basis, basis_u, found } = scratch;
+    u.clear();
+    u.extend(x.iter().map(|v| (v - mean) / scale));
+    // The basis depends on `u` alone, and the noise model's blocks (sample numbers, one length)
+    // all have the same `u` to the bit: it is built again only where `u` differs from the one
+    // it was built for.
+    let same = basis_u.len() == u.len() && basis_u.iter().zip(u.iter()).all(|(a, b)| a.to_bits() == b.to_bits());
+    if !same {
+        *found = 0;
+        for k in 0..LOCAL_TERMS {
+            let (done, rest) = basis.split_at_mut(*found);
+            let Some(q) = rest.first_mut() else { break };
+            q.clear();
+            q.extend(u.iter().map(|&v| power(v, k)));
+            for b in done.iter() {
+                let dot: f64 = q.iter().zip(b).map(|(a, c)| a * c).sum();
+                q.iter_mut().zip(b).for_each(|(a, c)| *a -= dot * c);
+            }
+            let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if !(norm > 1e-12) {
+                continue;
+            }
+            q.iter_mut().for_each(|v| *v /= norm);
+            *found += 1;
         }
-        let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if !(norm > 1e-12) {
-            continue;
-        }
-        q.iter_mut().for_each(|v| *v /= norm);
-        let dot: f64 = out.iter().zip(&q).map(|(a, c)| a * c).sum();
-        out.iter_mut().zip(&q).for_each(|(a, c)| *a -= dot * c);
-        basis.push(q);
+        basis_u.clear();
+        basis_u.extend_from_slice(u);
     }
+    // Each term taken out of `out` in turn, as the basis was built (the terms do not depend
+    // on `out`, so building them first changes no arithmetic).
+    for q in &basis[..*found] {
+        let dot: f64 = out.iter().zip(q.iter()).map(|(a, c)| a * c).sum();
+        out.iter_mut().zip(q.iter()).for_each(|(a, c)| *a -= dot * c);
+    }
+}
+
+/// Buffers of [`quadratic_residuals`] (the scaled abscissa and the orthonormal basis), reused
+/// from block to block: four allocations a block were a tenth of its cost, and the basis's
+/// Gram-Schmidt most of the rest.
+#[derive(Clone, Debug, Default)]
+struct QuadraticScratch {
+    u: Vec<f64>,
+    basis: [Vec<f64>; LOCAL_TERMS],
+    /// The `u` the first `found` vectors of `basis` are of.
+    basis_u: Vec<f64>,
+    found: usize,
 }
 
 /// `v^k` for the terms of the local quadratic (k < 3), as `powi` computes it (1, v, v * v: the
@@ -319,29 +348,133 @@ fn levinson(gamma: &[f64]) -> Vec<(Vec<f64>, f64)> {
 
 /// Autocovariances gamma_0..gamma_{len-1} of the AR model with innovation variance `v`.
 fn model_autocovariances(phi: &[f64], v: f64, len: usize) -> Vec<f64> {
-    // gamma_0..gamma_p solve gamma_h - sum_j phi_j gamma_|h-j| = v [h = 0] (h = 0..p); past p
-    // the Yule-Walker recursion gamma_h = sum_j phi_j gamma_{h-j} continues them.
     let p = phi.len();
-    let mut a = nalgebra::DMatrix::<f64>::zeros(p + 1, p + 1);
-    for h in 0..=p {
-        a[(h, h)] += 1.0;
-        for (j, c) in phi.iter().enumerate() {
-            a[(h, (h as isize - j as isize - 1).unsigned_abs())] -= c;
-        }
-    }
-    let mut rhs = nalgebra::DVector::<f64>::zeros(p + 1);
-    rhs[0] = v;
-    let Some(head) = a.lu().solve(&rhs) else {
-        return vec![0.0; len];
-    };
     // Reserved whole: grown push by push, the reallocations were a fifth of the moment solve.
-    let mut gamma: Vec<f64> = Vec::with_capacity(len);
-    gamma.extend(head.iter().copied().take(len));
+    let mut gamma: Vec<f64> = Vec::with_capacity(len.max(p + 1));
+    gamma.resize(p + 1, 0.0);
+    if !autocovariance_head(phi, v, &mut gamma) {
+        return vec![0.0; len];
+    }
+    gamma.truncate(len);
     while gamma.len() < len {
         let h = gamma.len();
         gamma.push(phi.iter().enumerate().map(|(j, c)| c * gamma[h - 1 - j]).sum());
     }
     gamma
+}
+
+/// [`autocovariance_head`] in an `N x N` matrix (order `N - 1`); a macro, since nalgebra's LU
+/// of a matrix of fixed size takes the size as a type, not a const generic.
+macro_rules! autocovariance_head_of {
+    ($n:literal, $phi:expr, $v:expr, $head:expr) => {{
+        let (phi, v, head): (&[f64], f64, &mut [f64]) = ($phi, $v, $head);
+        let mut a = nalgebra::SMatrix::<f64, $n, $n>::zeros();
+        for h in 0..$n {
+            a[(h, h)] += 1.0;
+            for (j, c) in phi.iter().enumerate() {
+                a[(h, (h as isize - j as isize - 1).unsigned_abs())] -= c;
+            }
+        }
+        let mut rhs = nalgebra::SVector::<f64, $n>::zeros();
+        rhs[0] = v;
+        match a.lu().solve(&rhs) {
+            Some(solution) => {
+                head.iter_mut().zip(solution.iter()).for_each(|(h, s)| *h = *s);
+                true
+            }
+            None => false,
+        }
+    }};
+}
+
+/// gamma_0..gamma_p of the AR model `phi` with innovation variance `v`, the start of
+/// [`model_autocovariances`], into `head` (p + 1 long): they solve
+/// gamma_h - sum_j phi_j gamma_|h-j| = v [h = 0] (h = 0..p); past p the Yule-Walker recursion
+/// gamma_h = sum_j phi_j gamma_{h-j} continues them. False where the system is singular.
+fn autocovariance_head(phi: &[f64], v: f64, head: &mut [f64]) -> bool {
+    // The orders the noise fit uses in matrices of fixed size: nalgebra's LU is the same
+    // generic code for either storage (the same bits), without the heap matrices that were
+    // most of a small solve's cost (2,000 instructions, 65,000 solves a 500-curve batch).
+    match phi.len() {
+        0 => autocovariance_head_of!(1, phi, v, head),
+        1 => autocovariance_head_of!(2, phi, v, head),
+        2 => autocovariance_head_of!(3, phi, v, head),
+        3 => autocovariance_head_of!(4, phi, v, head),
+        4 => autocovariance_head_of!(5, phi, v, head),
+        p => {
+            let mut a = nalgebra::DMatrix::<f64>::zeros(p + 1, p + 1);
+            for h in 0..=p {
+                a[(h, h)] += 1.0;
+                for (j, c) in phi.iter().enumerate() {
+                    a[(h, (h as isize - j as isize - 1).unsigned_abs())] -= c;
+                }
+            }
+            let mut rhs = nalgebra::DVector::<f64>::zeros(p + 1);
+            rhs[0] = v;
+            let Some(solution) = a.lu().solve(&rhs) else { return false };
+            head.iter_mut().zip(solution.iter()).for_each(|(h, s)| *h = *s);
+            true
+        }
+    }
+}
+
+/// Most models [`expected_lockstep`] evaluates side by side.
+const LOCKSTEP: usize = 8;
+
+/// `sum_k weights[h][k] gamma_k` at lags `h = 0..=p` for each of `models` (`(phi, v)`, all of
+/// order `p`, at most [`LOCKSTEP`]), gamma of length `len` ([`model_autocovariances`]), into
+/// `out[m][h]`: the same bits as one model at a time (every sum in the same order, from
+/// -0.0 as `Iterator::sum` starts), but the autocovariance recursions and weighted sums of
+/// the models run side by side. One at a time, each recursion step and each addition waited
+/// on the previous one: the moment solve's evaluations were a sixth of a detect's
+/// instructions and more of its time.
+fn expected_lockstep<const L: usize>(models: &[(Vec<f64>, f64)], weights: &[Vec<f64>], len: usize, out: &mut [Vec<f64>]) {
+    let p = models.first().map_or(0, |m| m.0.len()).min(MAX_AR_ORDER);
+    let mut gamma = vec![[0.0; L]; len];
+    // Models whose head is singular keep gamma 0 throughout.
+    let mut live = [false; L];
+    let mut phi = [[0.0; MAX_AR_ORDER]; L];
+    for (l, (c, v)) in models.iter().enumerate().take(L) {
+        let mut head = [0.0; MAX_AR_ORDER + 1];
+        if !autocovariance_head(c, *v, &mut head[..=p]) {
+            continue;
+        }
+        live[l] = true;
+        for (g, h) in gamma.iter_mut().zip(&head[..=p]) {
+            g[l] = *h;
+        }
+        phi[l].iter_mut().zip(c).for_each(|(a, b)| *a = *b);
+    }
+    for h in p + 1..len {
+        let mut next = [-0.0; L];
+        for j in 0..p {
+            let past = gamma[h - 1 - j];
+            for l in 0..L {
+                next[l] += phi[l][j] * past[l];
+            }
+        }
+        for l in (0..L).filter(|&l| !live[l]) {
+            next[l] = 0.0;
+        }
+        gamma[h] = next;
+    }
+    // Every lag's sums side by side too (k outer): each still in the order of k.
+    let lags = weights.len().min(p + 1);
+    let terms = weights[..lags].iter().map(Vec::len).min().unwrap_or(0).min(len);
+    let mut sums = [[-0.0; L]; MAX_AR_ORDER + 1];
+    for (k, g) in gamma.iter().enumerate().take(terms) {
+        for (w, sum) in weights[..lags].iter().zip(sums.iter_mut()) {
+            let c = w[k];
+            for l in 0..L {
+                sum[l] += c * g[l];
+            }
+        }
+    }
+    for (h, sum) in sums.iter().enumerate().take(lags) {
+        for (o, s) in out.iter_mut().zip(sum) {
+            o[h] = *s;
+        }
+    }
 }
 
 /// `c[h][k]`: expected lag-h residual product sum per pair, per unit of gamma_k, for residuals
@@ -642,11 +775,14 @@ fn gain_log_se_by(blocks: &[(Vec<f64>, Vec<f64>)], first_segment: usize, fit: (&
         let f: Vec<f64> = expected.iter().zip(&gamma).map(|(e, o)| (e - o) / equations.scale).collect();
         let lu = equations.jacobian(&theta, &f).lu();
         let mut estimates = Vec::with_capacity(groups);
-        for g in 0..groups {
-            let Some(observed) = left_out(g) else { continue };
-            let mut t = theta.clone();
-            let mut misfit: Vec<f64> = expected.iter().zip(&observed).map(|(e, o)| (e - o) / equations.scale).collect();
-            for _ in 0..2 {
+        // The groups step together (their moments evaluated side by side,
+        // [`MomentEquations::expected_each`]); each group's arithmetic is its own.
+        let observed: Vec<Vec<f64>> = (0..groups).filter_map(left_out).collect();
+        let mut ts = vec![theta.clone(); observed.len()];
+        let mut misfits: Vec<Vec<f64>> =
+            observed.iter().map(|o| expected.iter().zip(o).map(|(e, o)| (e - o) / equations.scale).collect()).collect();
+        for _ in 0..2 {
+            for (t, misfit) in ts.iter_mut().zip(&misfits) {
                 let delta = lu.solve(&nalgebra::DVector::from_iterator(p + 1, misfit.iter().map(|v| -v)))?;
                 t.iter_mut().zip(delta.iter()).enumerate().for_each(|(j, (a, d))| {
                     *a += d;
@@ -654,16 +790,19 @@ fn gain_log_se_by(blocks: &[(Vec<f64>, Vec<f64>)], first_segment: usize, fit: (&
                         *a = a.clamp(-equations.limit, equations.limit);
                     }
                 });
-                let e = equations.expected(&t);
-                misfit = e.iter().zip(&observed).map(|(e, o)| (e - o) / equations.scale).collect();
             }
+            for ((e, o), misfit) in equations.expected_each(&ts).iter().zip(&observed).zip(misfits.iter_mut()) {
+                *misfit = e.iter().zip(o).map(|(e, o)| (e - o) / equations.scale).collect();
+            }
+        }
+        for ((t, observed), misfit) in ts.iter().zip(&observed).zip(&misfits) {
             // Near the unit root ln(1 - sum phi) bends fast and the chord steps fall short:
             // there the group is solved to the end from where they got.
-            let model = equations.model(&t);
+            let model = equations.model(t);
             let phi_g = if misfit.iter().map(|v| v * v).sum::<f64>() < CHORD_TOLERANCE {
                 model.0
             } else {
-                solve_moments(&observed, &model, weights, block).0
+                solve_moments(observed, &model, weights, block).0
             };
             estimates.push(log_gain(&phi_g));
         }
@@ -730,6 +869,7 @@ fn bootstrap_gain_log_se(blocks: &[(Vec<f64>, Vec<f64>)], fit: (&[f64], f64), we
     let log_gain = |c: &[f64]| (1.0 - c.iter().sum::<f64>()).max(f64::MIN_POSITIVE).ln();
     let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(BOOTSTRAP_SEED);
     let (mut series, mut residual, mut xs) = (Vec::new(), Vec::new(), Vec::new());
+    let mut quadratic = QuadraticScratch::default();
     let mut estimates = Vec::with_capacity(BOOTSTRAP_REPLICATIONS);
     // Innovations of unit variance: the local moments' scale is the simulated one, and the
     // start of the solve is the fitted model on that scale.
@@ -745,7 +885,7 @@ fn bootstrap_gain_log_se(blocks: &[(Vec<f64>, Vec<f64>)], fit: (&[f64], f64), we
             }
             xs.clear();
             xs.extend((0..m).map(|i| i as f64));
-            quadratic_residuals(&xs, &series[BOOTSTRAP_BURN_IN..], &mut residual);
+            quadratic_residuals(&xs, &series[BOOTSTRAP_BURN_IN..], &mut residual, &mut quadratic);
             let (block_sums, block_pairs) = lag_products(&residual, p, m as f64);
             sums.iter_mut().zip(&block_sums).for_each(|(a, b)| *a += b);
             pairs.iter_mut().zip(&block_pairs).for_each(|(a, b)| *a += b);
@@ -798,9 +938,39 @@ impl<'a> MomentEquations<'a> {
 
     /// Expected local-residual autocovariances at lags 0..=p under the model `theta`.
     fn expected(&self, theta: &[f64]) -> Vec<f64> {
+        if self.order() <= MAX_AR_ORDER {
+            let mut out = vec![vec![0.0; self.order() + 1]];
+            expected_lockstep::<1>(&[self.model(theta)], self.weights, self.block, &mut out);
+            return out.pop().unwrap_or_default();
+        }
         let (phi, v) = self.model(theta);
         let gamma = model_autocovariances(&phi, v, self.block);
         (0..=self.order()).map(|h| self.weights[h].iter().zip(&gamma).map(|(c, g)| c * g).sum::<f64>()).collect()
+    }
+
+    /// [`Self::expected`] of each of `thetas`, the same bits, evaluated side by side
+    /// ([`expected_lockstep`]).
+    fn expected_each(&self, thetas: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        let p = self.order();
+        if p > MAX_AR_ORDER {
+            return thetas.iter().map(|t| self.expected(t)).collect();
+        }
+        let mut out = vec![vec![0.0; p + 1]; thetas.len()];
+        let models: Vec<(Vec<f64>, f64)> = thetas.iter().map(|t| self.model(t)).collect();
+        let (w, len) = (self.weights, self.block);
+        for (m, o) in models.chunks(LOCKSTEP).zip(out.chunks_mut(LOCKSTEP)) {
+            match m.len() {
+                1 => expected_lockstep::<1>(m, w, len, o),
+                2 => expected_lockstep::<2>(m, w, len, o),
+                3 => expected_lockstep::<3>(m, w, len, o),
+                4 => expected_lockstep::<4>(m, w, len, o),
+                5 => expected_lockstep::<5>(m, w, len, o),
+                6 => expected_lockstep::<6>(m, w, len, o),
+                7 => expected_lockstep::<7>(m, w, len, o),
+                _ => expected_lockstep::<LOCKSTEP>(m, w, len, o),
+            }
+        }
+        out
     }
 
     fn misfit(&self, theta: &[f64]) -> Vec<f64> {
@@ -812,10 +982,16 @@ impl<'a> MomentEquations<'a> {
         let p = self.order();
         let step = 1e-6;
         let mut jac = nalgebra::DMatrix::<f64>::zeros(p + 1, p + 1);
-        for j in 0..=p {
-            let mut t = theta.to_vec();
-            t[j] += step;
-            for (i, v) in self.misfit(&t).iter().enumerate() {
+        let stepped: Vec<Vec<f64>> = (0..=p)
+            .map(|j| {
+                let mut t = theta.to_vec();
+                t[j] += step;
+                t
+            })
+            .collect();
+        for (j, expected) in self.expected_each(&stepped).iter().enumerate() {
+            for (i, (e, o)) in expected.iter().zip(self.observed).enumerate() {
+                let v = (e - o) / self.scale;
                 jac[(i, j)] = (v - f[i]) / step;
             }
         }
@@ -832,13 +1008,18 @@ const MAX_REFLECTION: f64 = 0.995;
 /// reflections inside (-1, 1) give a stationary model.
 fn coefficients_from_reflections(reflections: &[f64]) -> Vec<f64> {
     let mut phi: Vec<f64> = Vec::with_capacity(reflections.len());
-    for (k, r) in reflections.iter().enumerate() {
-        let mut next = vec![0.0; k + 1];
-        for j in 0..k {
-            next[j] = phi[j] - r * phi[k - 1 - j];
+    for (k, &r) in reflections.iter().enumerate() {
+        // next_j = phi_j - r phi_{k-1-j}, in place: each pair (j, k-1-j) from its old values.
+        for j in 0..k / 2 {
+            let (a, b) = (phi[j], phi[k - 1 - j]);
+            phi[j] = a - r * b;
+            phi[k - 1 - j] = b - r * a;
         }
-        next[k] = *r;
-        phi = next;
+        if k % 2 == 1 {
+            let a = phi[k / 2];
+            phi[k / 2] = a - r * a;
+        }
+        phi.push(r);
     }
     phi
 }
@@ -1148,11 +1329,12 @@ pub fn block_noise(
     out: &mut Vec<f64>,
 ) {
     let (mut fitted, mut whitened) = (Vec::new(), Vec::new());
+    let mut quadratic = QuadraticScratch::default();
     let end = segment.end.min(x.len()).min(y.len());
     let mut lo = segment.start;
     while block > phi.len() + LOCAL_TERMS && lo + block <= end {
         let ys = &y[lo..lo + block];
-        quadratic_residuals(&x[lo..lo + block], ys, &mut fitted);
+        quadratic_residuals(&x[lo..lo + block], ys, &mut fitted, &mut quadratic);
         whiten(&fitted, phi, &mut whitened);
         let unit = unit_scale(ys, sd_slope);
         out.extend(whitened[phi.len()..].iter().map(|v| v * unit));
@@ -1293,6 +1475,7 @@ pub struct NoiseScratch {
     first_segment_blocks: usize,
     /// (mean level, residual variance) of each block kept.
     levels: Vec<(f64, f64)>,
+    quadratic: QuadraticScratch,
 }
 
 #[cfg(test)]

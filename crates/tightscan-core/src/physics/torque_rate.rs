@@ -388,8 +388,11 @@ fn finer_count(x: &[f64], origin: f64, grid: f64) -> f64 {
         return grid;
     }
     let mut near: Vec<f64> = differences.iter().copied().filter(|&d| d < 1.5 * smallest).collect();
-    near.sort_by(f64::total_cmp);
-    let count = near[near.len() / 2];
+    if near.is_empty() {
+        return grid;
+    }
+    let middle = near.len() / 2;
+    let (_, &mut count, _) = near.select_nth_unstable_by(middle, f64::total_cmp);
     let all = differences.len();
     differences.retain(|&d| {
         let q = d / count;

@@ -50,6 +50,10 @@ pub struct NoiseModel {
     /// `1 + sd_slope * level` (level: the signal itself, torque in Nm). 0 when the local
     /// residuals show no significant growth ([`sd_slope`]).
     pub sd_slope: f64,
+    /// The noise sd's line in the signal level as fitted, `sd = s0 + s1 level` (`(s0, s1)`,
+    /// `(0, 0)` where [`sd_slope`] found no significant growth), before `sd_slope`'s floor on
+    /// `s0`: for a detector that bounds the growth over its own window instead.
+    pub sd_line: (f64, f64),
     /// Standard error of `ln(1 - sum coefficients)` ([`gain_log_se`]): how uncertain the
     /// long-run variance of the whitened window is, for tests that average over it.
     pub gain_log_se: f64,
@@ -659,9 +663,11 @@ pub fn estimate_noise(x: &[f64], y: &[f64], block: usize, scratch: &mut NoiseScr
 pub fn estimate_noise_in(x: &[f64], y: &[f64], segments: &[std::ops::Range<usize>], block: usize, scratch: &mut NoiseScratch) -> NoiseModel {
     let block = block.max(MIN_NOISE_BLOCK);
     block_levels(x, y, SD_BLOCK, &mut scratch.levels, &mut scratch.residual, &mut scratch.quadratic);
-    let sd_slope = sd_slope(&scratch.levels);
+    let sd_line = sd_line(&scratch.levels);
+    let sd_slope = sd_line.map_or(0.0, |line| floored_sd_slope(&scratch.levels, line));
+    let sd_line = sd_line.unwrap_or((0.0, 0.0));
     let Some(observed) = local_autocovariances(x, y, segments, block, MAX_AR_ORDER, sd_slope, scratch) else {
-        return NoiseModel { sd_slope, ..NoiseModel::default() };
+        return NoiseModel { sd_slope, sd_line, ..NoiseModel::default() };
     };
     let n = x.len() as f64;
     // Blocks are `block` long but for the last, which takes the remainder; the weights of the
@@ -684,7 +690,7 @@ pub fn estimate_noise_in(x: &[f64], y: &[f64], segments: &[std::ops::Range<usize
     }
     let (_, phi, v) = best;
     let gain_log_se = gain_log_se(&scratch.blocks, scratch.first_segment_blocks, (&phi, v), &weights, block);
-    NoiseModel { coefficients: phi, sd_slope, gain_log_se }
+    NoiseModel { coefficients: phi, sd_slope, sd_line, gain_log_se }
 }
 
 /// Nodes and weights of the 5-point Gauss-Hermite rule for a standard normal (probabilists'
@@ -1422,18 +1428,26 @@ pub const SD_SLOPE_ALPHA: f64 = 0.01;
 
 /// The growth of the noise with the signal level, from the local blocks' (level, residual
 /// variance): the least-squares line `sd_b = s0 + s1 level_b`, kept when its slope is positive
-/// at [`SD_SLOPE_ALPHA`] (t test on the blocks), as `s1 / s0`. Transducers are specified as a
+/// at [`SD_SLOPE_ALPHA`] (t test on the blocks) ([`sd_line`]), as `s1 / s0`. Transducers are specified as a
 /// constant plus a percentage of the reading; where the percentage dominates, the noise at the
 /// target is several times that at snug, and every test of the elastic line that assumes one
 /// variance alarms on the loud end (Chow's end test first). The intercept is floored at a tenth
 /// of the largest block's sd, so a purely proportional noise does not give an unbounded weight
-/// to the quiet start. The bias the local lines leave in each block variance is the same
+/// to the quiet start. The bias the local quadratics leave in each block variance is the same
 /// factor for every block of one length, and cancels in the ratio.
-fn sd_slope(levels: &[(f64, f64)]) -> f64 {
+fn floored_sd_slope(levels: &[(f64, f64)], (s0, s1): (f64, f64)) -> f64 {
+    let loudest = levels.iter().map(|(_, v)| v.max(0.0).sqrt()).fold(0.0, f64::max);
+    s1 / s0.max(0.1 * loudest)
+}
+
+/// The least-squares line `sd_b = s0 + s1 level_b` of the local blocks' (level, residual
+/// variance), as `(s0, s1)`, where its slope is positive at [`SD_SLOPE_ALPHA`] (t test on the
+/// blocks); `None` where it is not, or with fewer than six blocks.
+fn sd_line(levels: &[(f64, f64)]) -> Option<(f64, f64)> {
     use statrs::distribution::{ContinuousCDF, StudentsT};
     let n = levels.len();
     if n < 6 {
-        return 0.0;
+        return None;
     }
     let m = n as f64;
     let sds: Vec<f64> = levels.iter().map(|(_, v)| v.max(0.0).sqrt()).collect();
@@ -1445,23 +1459,22 @@ fn sd_slope(levels: &[(f64, f64)]) -> f64 {
         sls += (l - ml) * (sd - ms);
     }
     if !(sll > 0.0) {
-        return 0.0;
+        return None;
     }
     let s1 = sls / sll;
     let s0 = ms - s1 * ml;
     let rss: f64 = levels.iter().zip(&sds).map(|((l, _), sd)| (sd - s0 - s1 * l).powi(2)).sum();
     let se = (rss / (m - 2.0) / sll).sqrt();
     if !(s1 > 0.0 && se > 0.0) {
-        return 0.0;
+        return None;
     }
     let Ok(t) = StudentsT::new(0.0, 1.0, m - 2.0) else {
-        return 0.0;
+        return None;
     };
     if t.sf(s1 / se) > SD_SLOPE_ALPHA {
-        return 0.0;
+        return None;
     }
-    let loudest = sds.iter().copied().fold(0.0, f64::max);
-    s1 / s0.max(0.1 * loudest)
+    Some((s0, s1))
 }
 
 /// `out_t = v_t - sum_j phi_j v_{t-1-j}` for `t >= p`; the first `p` samples are copied

@@ -65,6 +65,10 @@ pub(super) struct Scratch {
     /// Standardised noise of the rundown before the window, for the tail fit of
     /// [`Scratch::gaussianise_heavy_tails`].
     rundown_noise: Vec<f64>,
+    /// The rundown's stretch of `noise_t`, `noise_y` and the block length its noise was taken
+    /// in, and the window's first torque: what [`Scratch::weigh_by_growth`] weighs again with.
+    rundown_blocks: (std::ops::Range<usize>, usize),
+    t0: f64,
     lag: usize,
     wx: Vec<f64>,
     wy: Vec<f64>,
@@ -291,9 +295,11 @@ impl Scratch {
         self.rundown_noise.clear();
         let (phi, sd_slope) = (&self.noise.coefficients, self.noise.sd_slope);
         let rundown = segments[0].clone();
-        crate::detectors::noise::block_noise(&self.noise_t, &self.noise_y, rundown, block, phi, sd_slope, &mut self.rundown_noise);
+        crate::detectors::noise::block_noise(&self.noise_t, &self.noise_y, rundown.clone(), block, phi, sd_slope, &mut self.rundown_noise);
         self.lag = self.noise.coefficients.len();
-        self.noise_weights(t0);
+        self.rundown_blocks = (rundown, block);
+        self.t0 = t0;
+        self.noise_weights(t0, self.noise.sd_slope);
         let phi = &self.noise.coefficients;
         weigh(&self.xs, &self.weights, &mut self.weighted_x);
         whiten(&self.weighted_x, phi, &mut self.wx);
@@ -301,10 +307,10 @@ impl Scratch {
         whiten(&self.weighted, phi, &mut self.wy);
         self.wf.clear();
         if self.has_force {
-            // The noise fit is done with `noise_y`: it stages the clamp force of these samples.
-            self.noise_y.clear();
-            self.noise_y.extend(self.index.iter().map(|&i| self.force[i]));
-            weigh(&self.noise_y, &self.weights, &mut self.weighted);
+            // The clamp force of these samples, weighted (`noise_y` keeps the torque, for
+            // [`Scratch::weigh_by_growth`]).
+            self.weighted.clear();
+            self.weighted.extend(self.index.iter().enumerate().map(|(k, &i)| self.force[i] * self.weights.get(k).copied().unwrap_or(1.0)));
             whiten(&self.weighted, phi, &mut self.wf);
         }
         self.gaussianise_heavy_tails();
@@ -385,9 +391,8 @@ impl Scratch {
     /// straight line `y_i w_i = a / c0 + (b - a c1 / c0) (x_i w_i) + u_i` in the weighted angle,
     /// with a constant intercept and errors of one variance; a change of `a` or `b` stays a
     /// change of it. So every detector runs unchanged on the weighted samples.
-    fn noise_weights(&mut self, t0: f64) {
+    fn noise_weights(&mut self, t0: f64, kappa: f64) {
         self.weights.clear();
-        let kappa = self.noise.sd_slope;
         let n = self.n_window;
         if !(kappa > 0.0) || n < 2 {
             return;
@@ -396,6 +401,23 @@ impl Scratch {
         let mean_level = t0 + self.y[..n].iter().sum::<f64>() / n as f64;
         let reference = 1.0 + kappa * mean_level.max(0.0);
         self.weights.extend(self.xs.iter().map(|x| reference / (1.0 + kappa * (t0 + a + b * x).max(0.0))));
+    }
+
+    /// The window weighted and whitened again (`weights`, `wx`, `wy`, the rundown's noise and
+    /// the heavy tails' normal scores) for noise whose sd grows as `1 + kappa T` instead of
+    /// the noise model's `sd_slope`. The clamp force (`wf`) keeps the shared weights. For the
+    /// particle filter, which runs after every other detector has read the shared samples.
+    pub(super) fn weigh_by_growth(&mut self, kappa: f64) {
+        self.noise_weights(self.t0, kappa);
+        let phi = &self.noise.coefficients;
+        weigh(&self.xs, &self.weights, &mut self.weighted_x);
+        whiten(&self.weighted_x, phi, &mut self.wx);
+        weigh(&self.y, &self.weights, &mut self.weighted);
+        whiten(&self.weighted, phi, &mut self.wy);
+        self.rundown_noise.clear();
+        let (rundown, block) = self.rundown_blocks.clone();
+        crate::detectors::noise::block_noise(&self.noise_t, &self.noise_y, rundown, block, phi, kappa, &mut self.rundown_noise);
+        self.gaussianise_heavy_tails();
     }
 }
 
@@ -1032,7 +1054,59 @@ impl Detector {
 
 #[cfg(test)]
 mod tests {
-    use super::{smooth_angle, time_smoothed_angle, TIME_SMOOTHING};
+    use super::{smooth_angle, time_smoothed_angle, Scratch, TIME_SMOOTHING};
+
+    /// A curve whose noise sd is 0.01 Nm + 0.4 % of the torque (the independent generator's
+    /// transducer): a 1,300-sample rundown at 1 Nm, a 200-sample seating bend up to 20 Nm, then
+    /// the window, 20 -> 80 Nm over 600 samples. The noise model's fitted line finds the growth
+    /// (s1 / s0 0.37 per Nm, true 0.4), its floored slope 0.09; weighed by the fitted line the
+    /// window's noise has one sd (the weight times the true sd varies by 1 % over the window),
+    /// by the floored slope it still grows (by 26 %). Weighed again by the shared slope itself,
+    /// the samples are the shared ones bit for bit (the filter's path changes nothing else).
+    #[test]
+    fn the_window_weighed_by_the_fitted_growth_has_one_noise_level() {
+        use crate::physics::torque_rate::ElasticWindow;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(23);
+        let (rundown, window) = (1500, 600);
+        let seating = 200;
+        let clean: Vec<f64> = (0..rundown + window)
+            .map(|k| match k {
+                k if k < rundown - seating => 1.0,
+                k if k < rundown => 1.0 + 19.0 * ((k + seating - rundown) as f64 / seating as f64).powi(2),
+                k => 20.0 + 60.0 * (k - rundown) as f64 / window as f64,
+            })
+            .collect();
+        let torque: Vec<f64> = clean
+            .iter()
+            .map(|t| {
+                let u: f64 = StandardNormal.sample(&mut rng);
+                t + (0.01 + 0.004 * t) * u
+            })
+            .collect();
+        let angle: Vec<f64> = (0..rundown + window).map(|k| 0.37 * k as f64).collect();
+        let mut s = Scratch::default();
+        s.window_samples(&angle, &torque, ElasticWindow { start: rundown, end: rundown + window, peak: 80.0 }, None, 0..rundown - seating);
+        let (s0, s1) = s.noise.sd_line;
+        assert!(s1 > 0.0 && (0.3..0.5).contains(&(s1 / s0)), "sd line {s0} + {s1} T");
+        assert!(s.noise.sd_slope < 0.75 * s1 / s0, "the shared slope {} is floored", s.noise.sd_slope);
+        // max / min over the window of the weight times the true sd: 1 for weights of 1 / sd.
+        let spread = |s: &Scratch| -> f64 {
+            let n = s.n_window;
+            let level: Vec<f64> = (0..n).map(|k| s.weights[k] * (0.01 + 0.004 * clean[s.index[k]])).collect();
+            level.iter().copied().fold(0.0, f64::max) / level.iter().copied().fold(f64::INFINITY, f64::min)
+        };
+        let shared = spread(&s);
+        let (wx, wy) = (s.wx.clone(), s.wy.clone());
+        s.weigh_by_growth(s.noise.sd_slope);
+        assert!(s.wx == wx && s.wy == wy);
+        let growth = super::pf::window_growth(s.noise.sd_line, &s.xs[..s.n_window], &s.y[..s.n_window], s.t0);
+        s.weigh_by_growth(growth);
+        let own = spread(&s);
+        assert!(shared > 1.15, "the floored slope's weighted sd varies by {shared}");
+        assert!(own < 1.05, "the fitted line's weighted sd varies by {own}");
+    }
 
     /// A slow encoder (a 0.5 deg step every 17 samples) on a tool that pauses (CSDT): the
     /// samples of the pause are left out, and the tool turned on for 40 samples after the last

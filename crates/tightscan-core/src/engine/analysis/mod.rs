@@ -292,19 +292,11 @@ impl Scratch {
                 self.noise = longer;
             }
         }
-        self.rundown_noise.clear();
-        let (phi, sd_slope) = (&self.noise.coefficients, self.noise.sd_slope);
-        let rundown = segments[0].clone();
-        crate::detectors::noise::block_noise(&self.noise_t, &self.noise_y, rundown.clone(), block, phi, sd_slope, &mut self.rundown_noise);
         self.lag = self.noise.coefficients.len();
-        self.rundown_blocks = (rundown, block);
+        self.rundown_blocks = (segments[0].clone(), block);
         self.t0 = t0;
-        self.noise_weights(t0, self.noise.sd_slope);
+        self.weigh_and_whiten(self.noise.sd_slope);
         let phi = &self.noise.coefficients;
-        weigh(&self.xs, &self.weights, &mut self.weighted_x);
-        whiten(&self.weighted_x, phi, &mut self.wx);
-        weigh(&self.y, &self.weights, &mut self.weighted);
-        whiten(&self.weighted, phi, &mut self.wy);
         self.wf.clear();
         if self.has_force {
             // The clamp force of these samples, weighted (`noise_y` keeps the torque, for
@@ -408,6 +400,14 @@ impl Scratch {
     /// the noise model's `sd_slope`. The clamp force (`wf`) keeps the shared weights. For the
     /// particle filter, which runs after every other detector has read the shared samples.
     pub(super) fn weigh_by_growth(&mut self, kappa: f64) {
+        self.weigh_and_whiten(kappa);
+        self.gaussianise_heavy_tails();
+    }
+
+    /// The window's angle and torque weighted for noise whose sd grows as `1 + kappa T` and
+    /// whitened by the noise model (`weights`, `wx`, `wy`), and the rundown's noise
+    /// standardised with the same growth (the heavy-tail fit's reference).
+    fn weigh_and_whiten(&mut self, kappa: f64) {
         self.noise_weights(self.t0, kappa);
         let phi = &self.noise.coefficients;
         weigh(&self.xs, &self.weights, &mut self.weighted_x);
@@ -417,7 +417,6 @@ impl Scratch {
         self.rundown_noise.clear();
         let (rundown, block) = self.rundown_blocks.clone();
         crate::detectors::noise::block_noise(&self.noise_t, &self.noise_y, rundown, block, phi, kappa, &mut self.rundown_noise);
-        self.gaussianise_heavy_tails();
     }
 }
 

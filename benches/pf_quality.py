@@ -3,7 +3,7 @@ grid of benches/size_grid.py (2 kHz, 0.1 deg; both generators), recall and onset
 coverage on abrupt changes by magnitude (both generators, CST, CSDT and HDT), and how the
 statistic moves with the particle count (64 to 4,096) on the same curves.
 
-    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only] [--off-grid] [--trace]
+    .venv/bin/python benches/pf_quality.py [--n 200] [--alpha 0.05] [--particles-only] [--off-grid] [--trace] [--power-only]
 
 ``--trace`` re-measures the cells that ran over 1.5 alpha (CST and CSDT, white and t4) on
 three seeds a cell (``--n`` curves each, seeds 6000 + cell + 100 r as the size grid's first)
@@ -146,14 +146,16 @@ def power(n: int, alpha: float) -> list[dict[str, Any]]:
                 ok = pf & reached & np.isfinite(a_lo)
                 cover = float(np.mean((a_lo[ok] <= onset[ok]) & (onset[ok] <= a_hi[ok]))) if ok.any() else float("nan")
                 err = float(np.median(np.abs(mid[ok] - onset[ok]))) if ok.any() else float("nan")
+                signed = float(np.median(mid[ok] - onset[ok])) if ok.any() else float("nan")
                 width = float(np.median(a_hi[ok] - a_lo[ok])) if ok.any() else float("nan")
                 rows.append({"generator": generator, "strategy": strategy, "magnitude": [lo, hi], "reached": int(reached.sum()),
                              "pf_recall": float(pf[reached].mean()), "rule_recall": float(rule[reached].mean()), "coverage90": cover,
-                             "covered_alarms": int(ok.sum()), "median_onset_error_deg": err, "median_interval_deg": width})
+                             "covered_alarms": int(ok.sum()), "median_onset_error_deg": err, "median_signed_error_deg": signed,
+                             "median_interval_deg": width})
                 x = rows[-1]
                 print(f"power {generator:11s} {strategy} |change| {lo:.2f}-{hi:.2f}: pf recall {x['pf_recall']:.3f}, default rule {x['rule_recall']:.3f} "
-                      f"({x['reached']} reached); 90 % interval covers {cover:.2f} of {int(ok.sum())}, median error {err:.2f} deg, "
-                      f"width {width:.2f} deg", flush=True)
+                      f"({x['reached']} reached); 90 % interval covers {cover:.2f} of {int(ok.sum())}, median error {err:.2f} deg "
+                      f"(signed {signed:+.3f}), width {width:.2f} deg", flush=True)
     return rows
 
 
@@ -182,6 +184,7 @@ def main() -> int:
     parser.add_argument("--particles-only", action="store_true")
     parser.add_argument("--trace", action="store_true", help="only the oversized cells, three seeds each, 0.1 and 0.01 deg (--n 600 in benches/README.md)")
     parser.add_argument("--off-grid", action="store_true", help="only the spot check at 500 Hz / 10 kHz (--n 150 in benches/README.md)")
+    parser.add_argument("--power-only", action="store_true", help="only recall and the onset interval's coverage (writes pf_quality_power.json)")
     args = parser.parse_args()
     out: dict[str, Any] = {"alpha": args.alpha, "n": args.n}
     if args.trace:
@@ -193,6 +196,11 @@ def main() -> int:
         out["off_grid"] = off_grid(args.n, args.alpha)
         RESULTS.mkdir(exist_ok=True)
         (RESULTS / "pf_quality_off_grid.json").write_text(json.dumps(out, indent=1))
+        return 0
+    if args.power_only:
+        out["power"] = power(args.n, args.alpha)
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "pf_quality_power.json").write_text(json.dumps(out, indent=1))
         return 0
     if not args.particles_only:
         out["size"] = size(args.n, args.alpha)

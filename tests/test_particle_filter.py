@@ -31,7 +31,10 @@ ALPHA = 0.05
 PF = {"pf": True, "pf_alpha": ALPHA}
 CELLS = [(s, c, p) for s in ("CST", "HDT") for c, p in (("white", 0.0), ("ar1", 0.85))]
 N_CELL = 100  # clean curves per cell and generator: 400 per generator
-COVERAGE_FLOOR = 0.74  # measured 0.829 (97 of 117 alarms; 0.786 before the floor lag, 0.72 before the exact posterior)
+# The nominal 90 % onset interval on one band's ~117 alarms (binomial sd 2.8 points): measured
+# 0.897 (105 of 117); 0.974 with whole samples (0.829 on an earlier build), 0.786 before the
+# floor lag, 0.72 before the exact posterior.
+COVERAGE_BAND = (0.80, 0.97)
 
 
 def _pf_alarms(curves: pa.Table, **extra: object) -> np.ndarray:
@@ -122,15 +125,40 @@ def test_onset_credible_interval_is_roughly_calibrated(abrupt_changes: tuple[pa.
     # The median onset lies near the true one (window spans are tens of degrees)...
     error = np.abs(mid[ok] - onset[ok])
     assert float(np.median(error)) < 0.5, f"median onset error {np.median(error):.2f} deg"
-    # ... and the nominal 90 % interval covers it in most curves. The interval is the exact
-    # posterior of the change's sample (the marginal likelihood of every candidate, the data
-    # after the change included), no longer the filter's surviving paths, which share their jump
-    # times after resampling (0.72 here with those), on an angle with the encoder's half-step
-    # lag taken out (0.786 with it: the onset just past the interval's end). Still under the
-    # nominal 0.90: 8 of the 20 misses are intervals placed after the onset (by 0.4-11 deg),
-    # 6 end 0.02-0.06 deg short of it; benches/pf_quality.py measures it on both generators.
+    # ... and the nominal 90 % interval covers it about 90 % of the time, neither much less nor
+    # much more. The interval is the exact posterior of the change's sample (the marginal
+    # likelihood of every candidate, the data after the change included), not the filter's
+    # surviving paths, which share their jump times after resampling (0.72 here with those), on
+    # an angle with the encoder's half-step lag taken out (0.786 with it), each sample's mass
+    # spread over its advance (0.974 with whole samples: a posterior on one sample spanned its
+    # whole advance). benches/pf_quality.py --power-only measures it on both generators.
     coverage = float(np.mean((lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])))
-    assert coverage >= COVERAGE_FLOOR, f"coverage {coverage:.3f}"
+    assert COVERAGE_BAND[0] <= coverage <= COVERAGE_BAND[1], f"coverage {coverage:.3f}"
+
+
+def test_onset_interval_is_calibrated_on_the_independent_generator() -> None:
+    # Over- and under-coverage alike: 200 curves of each strategy with 5-30 % changes, about 560
+    # alarms pooled (binomial sd 1.3 points at 0.90). Measured at these seeds: CST 0.890 (178 of
+    # 200), CSDT 0.891 (171 of 192), HDT 0.867 (143 of 165), pooled 0.883; with whole samples
+    # 0.970 / 0.953 / 0.964, pooled 0.962 (the 5 % quantile at its sample's start, the 95 % at
+    # its end: a 100 % interval where the posterior sits on one sample).
+    fault = ig.FaultConfig(kind="abrupt", magnitude=(0.05, 0.3), signed=True, acts_on="mix")
+    covered = []
+    for i, strategy in enumerate(("CST", "CSDT", "HDT")):
+        curves, truth = ig.generate(ig.GeneratorConfig(n=200, seed=5501 + i, strategy=strategy, sample_rate_hz=2000.0, encoder_step_deg=0.1, fault=fault))
+        results = tightscan.detect_batch(curves, config=PF)
+        onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
+        reached = np.array(truth["onset_reached"].to_pylist(), dtype=bool)
+        lo, hi = (np.array(results[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi"))
+        alarms = np.array([bool(v) for v in results["pf_alarm"].to_pylist()])
+        ok = alarms & reached & np.isfinite(lo)
+        assert ok.sum() >= 140, f"{strategy}: {ok.sum()} alarms"
+        hit = (lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])
+        # One strategy's ~170 alarms: binomial sd 2.3 points.
+        assert 0.80 <= hit.mean() <= 0.97, f"{strategy}: coverage {hit.mean():.3f} of {ok.sum()}"
+        covered.append(hit)
+    pooled = float(np.concatenate(covered).mean())
+    assert 0.85 <= pooled <= 0.95, f"pooled coverage {pooled:.3f}"
 
 
 def test_onset_interval_covers_built_in_csdt_changes() -> None:
@@ -138,8 +166,11 @@ def test_onset_interval_covers_built_in_csdt_changes() -> None:
     # 2 kHz), where the posterior sits on one sample and the interval spans one sample's
     # advance, so its coverage is that of the angle: the interpolated angle there averages
     # floor-quantised counts and lags the shaft by half an encoder step (`floor_lag` in
-    # engine/analysis/pf.rs). Measured at this seed: 0.82 (82 of 100 alarms), median signed
-    # error of the change angle +0.007 deg; with the lag left in 0.48 and -0.043 deg.
+    # engine/analysis/pf.rs). Measured at this seed: 0.75 (75 of 100 alarms), median signed
+    # error of the change angle +0.007 deg; 0.82 with whole samples, 0.48 and -0.043 deg with
+    # the lag left in. Under the nominal 0.90 by the angle's own error: the quantised angle,
+    # averaged, is off the shaft by a robust sd of about 0.011 deg against an interval of
+    # 0.09 deg (benches/README.md, pf section: with exact angles the bench covers 0.88-0.89).
     curves, truth = tightscan.simulate(100, seed=5301, fault_fraction=1.0, strategies=["CSDT"], fault_kinds=["abrupt"], magnitude_range=(0.05, 0.3))
     results = tightscan.detect_batch(curves, config=PF)
     onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
@@ -157,7 +188,8 @@ def test_onset_interval_covers_changes_early_in_a_fast_window() -> None:
     # sample, so a change there lies among the filter's first ten samples (its training). The
     # onset posterior took candidates from the training's end only and put the interval after
     # such changes, by about the training's span (10-15 deg). Every sample with three before it
-    # is now a candidate. Measured at this seed: 0.679 before (74 of 109 alarms), 0.945 after (103).
+    # is now a candidate. Measured at this seed: 0.679 before (74 of 109 alarms), 0.945 after (103),
+    # 0.890 (97) with each sample's mass spread over its advance instead of whole samples.
     fault = ig.FaultConfig(kind="abrupt", magnitude=(0.2, 0.3), signed=True, acts_on="mix")
     curves, truth = ig.generate(ig.GeneratorConfig(n=120, seed=5401, strategy="HDT", sample_rate_hz=2000.0, encoder_step_deg=0.1, fault=fault))
     results = tightscan.detect_batch(curves, config=PF)
@@ -168,7 +200,7 @@ def test_onset_interval_covers_changes_early_in_a_fast_window() -> None:
     ok = alarms & reached & np.isfinite(lo)
     assert ok.sum() >= 80
     coverage = float(np.mean((lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])))
-    assert 0.85 <= coverage <= 0.995, f"coverage {coverage:.3f} of {ok.sum()}"
+    assert 0.85 <= coverage <= 0.97, f"coverage {coverage:.3f} of {ok.sum()}"
 
 
 def test_a_100k_sample_tightening_does_not_degenerate() -> None:

@@ -53,7 +53,9 @@
 //! On an alarm the change's sample gets its exact posterior given a change
 //! ([`onset_posterior`]: given the sample the model is linear and Gaussian, so every candidate's
 //! marginal likelihood is in closed form), not the filter's particles, whose jump times
-//! collapse onto a few survivors after resampling (path degeneracy).
+//! collapse onto a few survivors after resampling (path degeneracy). Its quantiles spread each
+//! sample's mass over the advance since the sample before ([`OnsetQuantiles`]): the data do not
+//! tell where in it the change came.
 
 use rand::{Rng, RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -471,7 +473,9 @@ pub struct ChangeDirection<'a> {
 /// by about the training's span: independent HDT coverage 0.87 / 0.83 / 0.75 / 0.74 on changes
 /// of 3-5 / 5-10 / 10-20 / 20-30 %, 0.97 / 0.98 / 0.95 / 0.97 with these candidates
 /// (benches/pf_quality.py, 300 curves a band; CST 0.92-0.93 -> 0.97-0.98, CSDT 0.88-0.92 ->
-/// 0.93-0.96; the built-in simulator's within a point).
+/// 0.93-0.96; the built-in simulator's within a point). Those were whole samples, a 100 %
+/// interval of a one-sample posterior; with each sample's mass spread over its advance
+/// ([`continuous_quantile`]) HDT covers 0.89-0.91, CST 0.88-0.91, CSDT 0.87-0.90 (600 a band).
 const FIRST_ONSET_CANDIDATE: usize = 3;
 
 /// Posterior of the change's sample given a change, exactly: given the jump's sample k the
@@ -493,10 +497,11 @@ const FIRST_ONSET_CANDIDATE: usize = 3;
 /// covered the true onset in 59-81 % of alarms). The filter's random-walk drift (0.5 noise sds
 /// over the window) is left out: it barely moves where the line turns.
 ///
-/// Returns the posterior median of the first changed sample and its 5 % and 95 % quantiles
-/// (index into the line), or `None` for a series the filter would refuse or a direction whose
-/// history is too short.
-pub fn onset_posterior(line: &WhitenedLine<'_>, direction: &ChangeDirection<'_>, config: &PfConfig) -> Option<(usize, usize, usize)> {
+/// Returns the posterior's median and 5 % and 95 % quantiles as continuous positions in the line
+/// ([`OnsetQuantiles`]: each sample's mass spread evenly over the stretch since the sample
+/// before), or `None` for a series the filter would refuse or a direction whose history is too
+/// short.
+pub fn onset_posterior(line: &WhitenedLine<'_>, direction: &ChangeDirection<'_>, config: &PfConfig) -> Option<OnsetQuantiles> {
     let (x, y) = (line.x, line.y);
     let p = direction.phi.len();
     let mut n = x.len().min(y.len());
@@ -577,18 +582,49 @@ pub fn onset_posterior(line: &WhitenedLine<'_>, direction: &ChangeDirection<'_>,
     if !log_total.is_finite() {
         return None;
     }
-    let mut cumulative = 0.0;
-    let (mut lo, mut mid, mut hi) = (None, None, None);
-    for (i, lp) in log_post.iter().enumerate() {
-        cumulative += (lp - log_total).exp();
-        for (level, slot) in [(0.05, &mut lo), (0.5, &mut mid), (0.95, &mut hi)] {
-            if slot.is_none() && cumulative >= level {
-                *slot = Some(first + i);
-            }
+    let mass: Vec<f64> = log_post.iter().map(|lp| (lp - log_total).exp()).collect();
+    let quantile = |level: f64| continuous_quantile(&mass, first, level);
+    Some(OnsetQuantiles { median: quantile(0.5), lo: quantile(0.05), hi: quantile(0.95) })
+}
+
+/// Where the torque rate changed, by [`onset_posterior`]: quantiles of its posterior as continuous
+/// positions in the line. A position `t` in `(k - 1, k]` lies the fraction `t - (k - 1)` of the
+/// way from sample `k - 1` to sample `k`; a change first seen at sample `k` happened there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OnsetQuantiles {
+    /// Posterior median.
+    pub median: f64,
+    /// 5 % quantile.
+    pub lo: f64,
+    /// 95 % quantile (`lo..=hi`: a 90 % credible interval).
+    pub hi: f64,
+}
+
+/// The `level` quantile of a posterior over the first changed sample (`mass[i]` for sample
+/// `first + i`, summing to 1) with each sample's mass spread evenly over `(k - 1, k]`.
+///
+/// Why spread: the model's change at sample k turns the line about the snug from sample k on,
+/// whatever point of the stretch since sample k - 1 it happened at, so the data say nothing of
+/// where inside it, and with the onset uniform over the angle the posterior within it is uniform
+/// (an angle linear in the position between two samples, as the engine maps it). Whole samples
+/// put the 5 % quantile at the start and the 95 % at the end of their samples' stretches: a
+/// posterior on one sample (most alarms: the median interval was one sample's advance) gave an
+/// interval of its whole advance, 100 %, not 90 %. Independent generator, changes of 3-5 /
+/// 5-10 / 10-20 / 20-30 %, 600 curves a band (benches/pf_quality.py --power-only), whole samples
+/// -> spread: CST 0.97 / 0.97 / 0.99 / 0.98 -> 0.89 / 0.88 / 0.91 / 0.88, CSDT 0.95 / 0.94 /
+/// 0.94 / 0.94 -> 0.90 / 0.88 / 0.88 / 0.87, HDT 0.98 / 0.97 / 0.96 / 0.96 -> 0.91 / 0.90 /
+/// 0.89 / 0.89; built-in CST and HDT 0.95-0.96 -> 0.88-0.92.
+fn continuous_quantile(mass: &[f64], first: usize, level: f64) -> f64 {
+    let mut below = 0.0;
+    for (i, &m) in mass.iter().enumerate() {
+        if m > 0.0 && below + m >= level {
+            let fraction = ((level - below) / m).clamp(0.0, 1.0);
+            return (first + i) as f64 - 1.0 + fraction;
         }
+        below += m;
     }
-    let last = n - 1;
-    Some((mid.unwrap_or(last), lo.unwrap_or(last), hi.unwrap_or(last)))
+    // Rounding left the total a little under `level`: the last sample with mass.
+    mass.iter().rposition(|&m| m > 0.0).map_or((first + mass.len()) as f64 - 1.0, |i| (first + i) as f64)
 }
 
 /// `ln det A` and `b' A^-1 b` of a symmetric positive definite 3 x 3 `A` by Cholesky; `None`
@@ -819,10 +855,11 @@ mod tests {
     /// The exact onset posterior covers the change's sample at about its nominal 90 % on
     /// whitened AR(1) noise (phi 0.8) where the line turns about a pivot well before the window
     /// (a friction change: a step and a turn, which whitening spreads over the samples after
-    /// the change), changes of 1.5-3 % (a step of 1-4 innovation sds): placed to a sample or
-    /// two, and the interval neither a point nor the window (measured: 98.5 % coverage, median
-    /// error 0, median width 13 samples; a fixed-size change is not the prior's, so the
-    /// frequentist coverage need not be 90 %, and is conservative here). (Whitening the direction as if it
+    /// the change), changes of 1.5-3 % (a step of 1-4 innovation sds), each at a point drawn
+    /// uniformly within its sample's advance: placed to a sample or two, and the interval neither
+    /// a point nor the window (measured: 93.5 % coverage, median error 0.39 samples, median width
+    /// 16.9 samples; 98.5 % with whole samples; a fixed-size change is not the prior's, so the
+    /// frequentist coverage need not be 90 %). (Whitening the direction as if it
     /// started fresh at the change, the whitened line's own columns from k on, covered about
     /// as often here: it loses only the change's first sample.)
     #[test]
@@ -850,20 +887,22 @@ mod tests {
             let (wone, wx, wy) = (white(&ones), white(&x), white(&y));
             let line = WhitenedLine { intercept: Some(&wone), x: &wx, pivot_x: &x[1..], y: &wy, restarts: &[] };
             let exact = ChangeDirection { weight: &ones, weighted_x: &x, pivot, phi: &[phi] };
-            let (mid, lo, hi) = onset_posterior(&line, &exact, &config).expect("a posterior");
-            assert!(lo <= mid && mid <= hi);
-            // Line sample k is series sample k + 1.
-            covered += usize::from(lo < at && at <= hi + 1);
-            errors.push((mid as f64 + 1.0 - at as f64).abs());
-            widths.push((hi - lo) as f64);
+            let OnsetQuantiles { median, lo, hi } = onset_posterior(&line, &exact, &config).expect("a posterior");
+            assert!(lo <= median && median <= hi);
+            // Line sample k is series sample k + 1, so the change lies in (at - 2, at - 1] of the
+            // line's positions; where in it, the data cannot tell (drawn uniformly).
+            let truth = at as f64 - 2.0 + rng.random::<f64>();
+            covered += usize::from(lo <= truth && truth <= hi);
+            errors.push((median - truth).abs());
+            widths.push(hi - lo);
         }
         let coverage = covered as f64 / reps as f64;
         errors.sort_by(f64::total_cmp);
         widths.sort_by(f64::total_cmp);
         let (error, width) = (errors[reps as usize / 2], widths[reps as usize / 2]);
         eprintln!("coverage {coverage}, median error {error}, median width {width}");
-        assert!((0.85..=0.995).contains(&coverage), "coverage {coverage}");
-        assert!(error <= 3.0 && (1.0..=30.0).contains(&width), "median error {error}, width {width} samples");
+        assert!((0.85..=0.97).contains(&coverage), "coverage {coverage}");
+        assert!(error <= 3.0 && (0.9..=30.0).contains(&width), "median error {error}, width {width} samples");
         // Bad input: `None`, no panic.
         let (x, y) = line(60, 0.0, 0, 0.1, 1);
         let ones = vec![1.0; 60];
@@ -872,12 +911,40 @@ mod tests {
         assert!(onset_posterior(&plain, &ChangeDirection { weight: &ones, weighted_x: &x, pivot: f64::NAN, phi: &[] }, &config).is_none());
     }
 
+    /// The quantiles spread each sample's mass over the stretch since the sample before: a
+    /// posterior on one sample k gives the 90 % interval (k - 0.95, k - 0.05], not the whole
+    /// stretch (k - 1, k] that whole samples gave (a 100 % interval under a 90 % name, which
+    /// over-covered: benches/pf_quality.py --power-only, independent generator 0.94-0.99).
+    #[test]
+    fn onset_quantiles_are_continuous_within_a_sample() {
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        // All mass on sample 7 (candidates from 3 on).
+        let one = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        assert!(close(continuous_quantile(&one, 3, 0.05), 6.05));
+        assert!(close(continuous_quantile(&one, 3, 0.5), 6.5));
+        assert!(close(continuous_quantile(&one, 3, 0.95), 6.95));
+        // Half on sample 4, half on sample 5: the median is where they meet.
+        let two = [0.0, 0.5, 0.5];
+        assert!(close(continuous_quantile(&two, 3, 0.5), 4.0));
+        assert!(close(continuous_quantile(&two, 3, 0.05), 3.1));
+        assert!(close(continuous_quantile(&two, 3, 0.95), 4.9));
+        // Rounding that leaves the total short of the level: the last sample with mass.
+        assert!(close(continuous_quantile(&[0.5, 0.4, 0.0], 3, 0.95), 4.0));
+        // The quantiles of a posterior uniform over ten samples are the uniform's.
+        let flat = [0.1; 10];
+        for level in [0.05, 0.25, 0.5, 0.95] {
+            assert!(close(continuous_quantile(&flat, 3, level), 2.0 + 10.0 * level));
+        }
+    }
+
     /// A change among the filter's first `training` samples: a fast tool (the independent
     /// generator's HDT rundown, 1.3-1.6 deg a sample) reaches a friction change three to five
     /// samples into the window, where a friction change of 20-30 % steps the torque by tens of
     /// noise sds and turns the line about the snug. Candidates from the training's end on only
     /// put the 90 % interval after every such change (0 of 60 covered); from
-    /// [`FIRST_ONSET_CANDIDATE`] on it covers them (60 of 60 here: the step pins the sample).
+    /// [`FIRST_ONSET_CANDIDATE`] on it covers them: the step pins the sample, and the change,
+    /// uniform within its sample's advance, lies in the 90 % of it the interval keeps in 55 of
+    /// 60 here (60 of 60 with whole samples; binomial sd 2.3 at 90 %, so 48 is 3 sds under).
     #[test]
     fn the_onset_posterior_finds_a_change_inside_the_filters_training() {
         let (n, pivot) = (40usize, -12.0);
@@ -899,12 +966,13 @@ mod tests {
             let ones = vec![1.0; n];
             let line = WhitenedLine { intercept: Some(&ones), x: &x, pivot_x: &x, y: &y, restarts: &[] };
             let direction = ChangeDirection { weight: &ones, weighted_x: &x, pivot, phi: &[] };
-            let (mid, lo, hi) = onset_posterior(&line, &direction, &config).expect("a posterior");
-            assert!(lo <= mid && mid <= hi);
-            covered += usize::from(lo <= at && at <= hi);
+            let OnsetQuantiles { median, lo, hi } = onset_posterior(&line, &direction, &config).expect("a posterior");
+            assert!(lo <= median && median <= hi);
+            let truth = at as f64 - 1.0 + rng.random::<f64>();
+            covered += usize::from(lo <= truth && truth <= hi);
         }
         eprintln!("{covered} of {reps} changes inside the training covered");
-        assert!(covered >= 54, "{covered} of {reps} changes inside the training covered");
+        assert!(covered >= 48, "{covered} of {reps} changes inside the training covered");
     }
 
     /// The null table's p-value falls with the statistic, meets the table's levels at its

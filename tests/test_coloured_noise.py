@@ -261,8 +261,12 @@ def test_the_cusum_blocks_under_strong_colour_are_not_flattened_by_the_encoder()
     alarms = sum(bool(v) for v in results["cusum_alarm"].to_pylist())
     assert len(dispersion) >= 500
     assert statistics.median(dispersion) <= 1.05
-    # The CUSUM's share of the rule's alpha is a quarter of 1 %.
-    assert alarms / len(dispersion) <= 0.005
+    # The CUSUM's share of the rule's alpha is a quarter of 1 %: 1.4 alarms expected in these
+    # curves, and at most 4 (0.74 %) is a 1 % test of it (Poisson: P(>= 5) = 1.2 %). The bound
+    # was 0.5 %, which a CUSUM at its nominal share fails on 16 % of seeds; since the weights
+    # carry the angle's quantisation error there are 3 alarms here (2 before; median
+    # dispersion 0.89 -> 0.83). The dispersion is what tells the old fault (1.27) apart.
+    assert alarms <= 4
 
 
 def test_the_cusum_s_last_block_is_not_steepened_by_the_tool_braking_past_the_window() -> None:

@@ -295,7 +295,7 @@ impl Scratch {
         self.lag = self.noise.coefficients.len();
         self.rundown_blocks = (segments[0].clone(), block);
         self.t0 = t0;
-        self.weigh_and_whiten(self.noise.sd_slope);
+        self.weigh_and_whiten(self.noise.sd_slope, true);
         let phi = &self.noise.coefficients;
         self.wf.clear();
         if self.has_force {
@@ -383,7 +383,7 @@ impl Scratch {
     /// straight line `y_i w_i = a / c0 + (b - a c1 / c0) (x_i w_i) + u_i` in the weighted angle,
     /// with a constant intercept and errors of one variance; a change of `a` or `b` stays a
     /// change of it. So every detector runs unchanged on the weighted samples.
-    fn noise_weights(&mut self, t0: f64, kappa: f64) {
+    fn noise_weights(&mut self, t0: f64, kappa: f64, angle_error: bool) {
         self.weights.clear();
         let n = self.n_window;
         if !(kappa > 0.0) || n < 2 {
@@ -391,24 +391,45 @@ impl Scratch {
         }
         let (a, b) = crate::detectors::least_squares_line(&self.xs[..n], &self.y[..n]);
         let mean_level = t0 + self.y[..n].iter().sum::<f64>() / n as f64;
-        let reference = 1.0 + kappa * mean_level.max(0.0);
-        self.weights.extend(self.xs.iter().map(|x| reference / (1.0 + kappa * (t0 + a + b * x).max(0.0))));
+        // The angle's quantisation error, in torque: the torque rate times an error uniform over
+        // the encoder step r, sd |b| r / sqrt(12), at every level of the window alike, in units
+        // of the noise sd's intercept (`s0 = s1 / kappa`). The noise model, fitted to torque on
+        // sample number, never sees it, and where the noise grows with the torque the window's
+        // first samples got the weight of their small torque noise alone: at 2 kHz with a 0.5 deg
+        // encoder an HDT tool turns three counts a sample there (nothing tells where within its
+        // step the shaft is), about 0.1 Nm of error against 0.03-0.07 Nm of noise, and the start
+        // test claimed 3.2 % of clean curves. The whole step, not what the interpolation between
+        // the count's rises may leave of it (the error over the sample's advance where the tool
+        // turns less than a step a sample): with that, the independent generator's clean CST
+        // curves at 2 kHz with a 0.5 deg encoder under AR(1) noise of phi 0.85 / 0.9 gave 4.9 /
+        // 7.3 % false alarms (1.0 / 0.8 % with the whole step; benches/README.md).
+        let s1 = self.noise.sd_line.1;
+        let quantisation = if angle_error && s1 > 0.0 { b.abs() * self.encoder_resolution / 12.0_f64.sqrt() * kappa / s1 } else { 0.0 };
+        let quantisation = if quantisation.is_finite() { quantisation } else { 0.0 };
+        let sd = |level: f64| (1.0 + kappa * level.max(0.0)).hypot(quantisation);
+        let reference = sd(mean_level);
+        self.weights.extend(self.xs.iter().map(|x| reference / sd(t0 + a + b * x)));
     }
 
     /// The window weighted and whitened again (`weights`, `wx`, `wy`, the rundown's noise and
     /// the heavy tails' normal scores) for noise whose sd grows as `1 + kappa T` instead of
     /// the noise model's `sd_slope`. The clamp force (`wf`) keeps the shared weights. For the
     /// particle filter, which runs after every other detector has read the shared samples.
+    /// Without the angle's quantisation error: with it, the filter's false alarms at alpha 0.05
+    /// on the independent generator's clean curves (2 kHz, 0.5 deg encoder, white noise, 600 a
+    /// strategy) rose from 20.0 / 28.3 / 17.3 % to 30.0 / 42.5 / 25.2 % (CST / CSDT / HDT): its
+    /// excess there grows as the noise falls against the quantisation, and flatter weights give
+    /// the quiet samples' quantisation more say (benches/README.md, pf section).
     pub(super) fn weigh_by_growth(&mut self, kappa: f64) {
-        self.weigh_and_whiten(kappa);
+        self.weigh_and_whiten(kappa, false);
         self.gaussianise_heavy_tails();
     }
 
     /// The window's angle and torque weighted for noise whose sd grows as `1 + kappa T` and
     /// whitened by the noise model (`weights`, `wx`, `wy`), and the rundown's noise
     /// standardised with the same growth (the heavy-tail fit's reference).
-    fn weigh_and_whiten(&mut self, kappa: f64) {
-        self.noise_weights(self.t0, kappa);
+    fn weigh_and_whiten(&mut self, kappa: f64, angle_error: bool) {
+        self.noise_weights(self.t0, kappa, angle_error);
         let phi = &self.noise.coefficients;
         weigh(&self.xs, &self.weights, &mut self.weighted_x);
         whiten(&self.weighted_x, phi, &mut self.wx);
@@ -1055,6 +1076,65 @@ impl Detector {
 mod tests {
     use super::{smooth_angle, time_smoothed_angle, Scratch, TIME_SMOOTHING};
 
+    /// A rundown at 1 Nm, a quadratic seating to 20 Nm and an elastic line to 80 Nm over
+    /// `window` samples (`clean`), and that torque with noise of sd 0.01 Nm + 0.4 % of it.
+    fn growing_noise_curve(rundown: usize, window: usize, seating: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
+        let clean: Vec<f64> = (0..rundown + window)
+            .map(|k| match k {
+                k if k < rundown - seating => 1.0,
+                k if k < rundown => 1.0 + 19.0 * ((k + seating - rundown) as f64 / seating as f64).powi(2),
+                k => 20.0 + 60.0 * (k - rundown) as f64 / window as f64,
+            })
+            .collect();
+        let torque = clean
+            .iter()
+            .map(|t| {
+                let u: f64 = StandardNormal.sample(&mut rng);
+                t + (0.01 + 0.004 * t) * u
+            })
+            .collect();
+        (clean, torque)
+    }
+
+    /// The weights carry the angle's quantisation error (the torque rate times an error uniform
+    /// over the encoder's step) beside the noise that grows with the torque: read through a 0.5
+    /// deg encoder, the window's first samples are not weighed as if their small torque noise
+    /// were all their error (first / last weight 2.24; 2.92 for the growth alone). Unquantised,
+    /// the weights follow the growth alone.
+    #[test]
+    fn the_angle_s_quantisation_error_flattens_the_weights() {
+        use crate::physics::torque_rate::ElasticWindow;
+        let (rundown, window, seating) = (1500, 200, 200);
+        let (_, torque) = growing_noise_curve(rundown, window, seating, 29);
+        // The shaft's advance varies a little from sample to sample, as a real tool's does (an
+        // unquantised angle of exactly equal steps reads as a grid of that step).
+        let shaft: Vec<f64> = (0..rundown + window).map(|k| 0.37 * k as f64 + 0.123 + 0.02 * (0.7 * k as f64).sin()).collect();
+        // First / last weight of the window, the encoder's grid, the fitted growth and rate.
+        let weigh = |angle: &[f64]| {
+            let mut s = Scratch::default();
+            s.window_samples(angle, &torque, ElasticWindow { start: rundown, end: rundown + window, peak: 80.0 }, None, 0..rundown - seating);
+            let n = s.n_window;
+            let (a, b) = crate::detectors::least_squares_line(&s.xs[..n], &s.y[..n]);
+            let level = |k: usize| s.t0 + a + b * s.xs[k];
+            (s.weights[0] / s.weights[n - 1], s.encoder_resolution, s.noise.sd_slope, s.noise.sd_line.1, b, level(0), level(n - 1))
+        };
+        let (free, r, kappa, _, _, lo, hi) = weigh(&shaft);
+        assert_eq!(r, 0.0);
+        assert!(kappa > 0.0);
+        assert!((free - (1.0 + kappa * hi) / (1.0 + kappa * lo)).abs() < 1e-9, "unquantised: {free}");
+        let quantised: Vec<f64> = shaft.iter().map(|a| (a / 0.5).floor() * 0.5).collect();
+        let (ratio, r, kappa, s1, rate, lo, hi) = weigh(&quantised);
+        assert!((r - 0.5).abs() < 1e-9, "encoder grid {r}");
+        // 0.81 Nm/deg x 0.5 deg / sqrt(12): 0.12 Nm, against 0.09 Nm of noise at the start.
+        let q = rate.abs() * r / 12.0_f64.sqrt() * kappa / s1;
+        let expected = (1.0 + kappa * hi).hypot(q) / (1.0 + kappa * lo).hypot(q);
+        assert!((ratio - expected).abs() < 1e-9, "quantised: {ratio} against {expected}");
+        assert!(ratio < 0.8 * free, "the quantisation error left the weights at {ratio} ({free} without)");
+    }
+
     /// A curve whose noise sd is 0.01 Nm + 0.4 % of the torque (the independent generator's
     /// transducer): a 1,300-sample rundown at 1 Nm, a 200-sample seating bend up to 20 Nm, then
     /// the window, 20 -> 80 Nm over 600 samples. The noise model's fitted line finds the growth
@@ -1065,26 +1145,12 @@ mod tests {
     #[test]
     fn the_window_weighed_by_the_fitted_growth_has_one_noise_level() {
         use crate::physics::torque_rate::ElasticWindow;
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(23);
         let (rundown, window) = (1500, 600);
         let seating = 200;
-        let clean: Vec<f64> = (0..rundown + window)
-            .map(|k| match k {
-                k if k < rundown - seating => 1.0,
-                k if k < rundown => 1.0 + 19.0 * ((k + seating - rundown) as f64 / seating as f64).powi(2),
-                k => 20.0 + 60.0 * (k - rundown) as f64 / window as f64,
-            })
-            .collect();
-        let torque: Vec<f64> = clean
-            .iter()
-            .map(|t| {
-                let u: f64 = StandardNormal.sample(&mut rng);
-                t + (0.01 + 0.004 * t) * u
-            })
-            .collect();
-        let angle: Vec<f64> = (0..rundown + window).map(|k| 0.37 * k as f64).collect();
+        let (clean, torque) = growing_noise_curve(rundown, window, seating, 23);
+        // Unquantised, its advance varying a little as a real tool's does (equal steps read as an
+        // encoder's grid, whose quantisation error the weights would carry).
+        let angle: Vec<f64> = (0..rundown + window).map(|k| 0.37 * k as f64 + 0.02 * (0.7 * k as f64).sin()).collect();
         let mut s = Scratch::default();
         s.window_samples(&angle, &torque, ElasticWindow { start: rundown, end: rundown + window, peak: 80.0 }, None, 0..rundown - seating);
         let (s0, s1) = s.noise.sd_line;

@@ -136,6 +136,18 @@ def test_onset_credible_interval_is_roughly_calibrated(abrupt_changes: tuple[pa.
     assert COVERAGE_BAND[0] <= coverage <= COVERAGE_BAND[1], f"coverage {coverage:.3f}"
 
 
+def _interval_covers_onset(results: pa.Table, truth: pa.Table) -> np.ndarray:
+    """Per pf alarm on an independent-generator curve whose change was reached (and given an
+    interval): whether the 90 % interval covers the true onset angle."""
+    onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
+    reached = np.array(truth["onset_reached"].to_pylist(), dtype=bool)
+    lo, hi = (np.array(results[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi"))
+    alarms = np.array([bool(v) for v in results["pf_alarm"].to_pylist()])
+    ok = alarms & reached & np.isfinite(lo)
+    covered: np.ndarray = (lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])
+    return covered
+
+
 def test_onset_interval_is_calibrated_on_the_independent_generator() -> None:
     # Over- and under-coverage alike: 200 curves of each strategy with 5-30 % changes, about 560
     # alarms pooled (binomial sd 1.3 points at 0.90). Measured at these seeds: CST 0.890 (178 of
@@ -146,16 +158,10 @@ def test_onset_interval_is_calibrated_on_the_independent_generator() -> None:
     covered = []
     for i, strategy in enumerate(("CST", "CSDT", "HDT")):
         curves, truth = ig.generate(ig.GeneratorConfig(n=200, seed=5501 + i, strategy=strategy, sample_rate_hz=2000.0, encoder_step_deg=0.1, fault=fault))
-        results = tightscan.detect_batch(curves, config=PF)
-        onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
-        reached = np.array(truth["onset_reached"].to_pylist(), dtype=bool)
-        lo, hi = (np.array(results[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi"))
-        alarms = np.array([bool(v) for v in results["pf_alarm"].to_pylist()])
-        ok = alarms & reached & np.isfinite(lo)
-        assert ok.sum() >= 140, f"{strategy}: {ok.sum()} alarms"
-        hit = (lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])
+        hit = _interval_covers_onset(tightscan.detect_batch(curves, config=PF), truth)
+        assert len(hit) >= 140, f"{strategy}: {len(hit)} alarms"
         # One strategy's ~170 alarms: binomial sd 2.3 points.
-        assert 0.80 <= hit.mean() <= 0.97, f"{strategy}: coverage {hit.mean():.3f} of {ok.sum()}"
+        assert 0.80 <= hit.mean() <= 0.97, f"{strategy}: coverage {hit.mean():.3f} of {len(hit)}"
         covered.append(hit)
     pooled = float(np.concatenate(covered).mean())
     assert 0.85 <= pooled <= 0.95, f"pooled coverage {pooled:.3f}"
@@ -192,15 +198,10 @@ def test_onset_interval_covers_changes_early_in_a_fast_window() -> None:
     # 0.890 (97) with each sample's mass spread over its advance instead of whole samples.
     fault = ig.FaultConfig(kind="abrupt", magnitude=(0.2, 0.3), signed=True, acts_on="mix")
     curves, truth = ig.generate(ig.GeneratorConfig(n=120, seed=5401, strategy="HDT", sample_rate_hz=2000.0, encoder_step_deg=0.1, fault=fault))
-    results = tightscan.detect_batch(curves, config=PF)
-    onset = np.array(truth["onset_angle"].to_pylist(), dtype=float)
-    reached = np.array(truth["onset_reached"].to_pylist(), dtype=bool)
-    lo, hi = (np.array(results[c].to_pylist(), dtype=float) for c in ("pf_change_lo", "pf_change_hi"))
-    alarms = np.array([bool(v) for v in results["pf_alarm"].to_pylist()])
-    ok = alarms & reached & np.isfinite(lo)
-    assert ok.sum() >= 80
-    coverage = float(np.mean((lo[ok] <= onset[ok]) & (onset[ok] <= hi[ok])))
-    assert 0.85 <= coverage <= 0.97, f"coverage {coverage:.3f} of {ok.sum()}"
+    hit = _interval_covers_onset(tightscan.detect_batch(curves, config=PF), truth)
+    assert len(hit) >= 80
+    coverage = float(hit.mean())
+    assert 0.85 <= coverage <= 0.97, f"coverage {coverage:.3f} of {len(hit)}"
 
 
 def test_a_100k_sample_tightening_does_not_degenerate() -> None:

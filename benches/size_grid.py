@@ -5,7 +5,10 @@ from the physics texts without the simulator's code).
 
 Every cell is clean curves only; the rule runs at alpha (default 0.01) as a user would run it.
 A cell passes when its rate lies within [0.5, 1.5] x alpha (the detection-validity issue's
-goal). Prints one table per generator and writes benches/results/size_grid.json.
+goal). Prints each cell's rate with each detector of the rule's own rate beside it, then a
+table of those detectors' rates pooled by generator, noise and sampling rate against their shares
+of alpha (where a cell's excess or shortfall comes from), and writes
+benches/results/size_grid.json.
 
     .venv/bin/python benches/size_grid.py [--n 1000] [--alpha 0.01] [--quick]
 """
@@ -80,21 +83,32 @@ def run(generator: str, n: int, alpha: float, grid: list[tuple[Any, ...]]) -> li
         t0 = time.perf_counter()
         curves = make(n, 1000 + k, strategy, rate, encoder, colour, phi)
         results = tightscan.detect_batch(curves, config={"alpha": alpha})
-        decided = [v for v in results["change_detected"].to_pylist() if v is not None]
+        detected = results["change_detected"].to_pylist()
+        decided = [v for v in detected if v is not None]
         alarms = sum(bool(v) for v in decided)
         rate_ = alarms / len(decided) if decided else math.nan
         lo, hi = wilson(alarms, len(decided))
+        # Each detector of the rule on its own, against its share of alpha: which one a cell's
+        # excess or shortfall comes from.
+        shares = tightscan.results_metadata(results)["shares"]
+        fired = {name: 0 for name in shares}
+        for names, v in zip(results["detectors_fired"].to_pylist(), detected):
+            for name in (names or "").split(",") if v is not None else ():
+                if name in fired:
+                    fired[name] += 1
         rows.append(
             {
                 "generator": generator, "strategy": strategy, "sample_rate_hz": rate, "encoder_deg": encoder, "noise": label,
                 "curves": n, "decided": len(decided), "false_alarms": alarms, "rate": rate_, "ci95": [lo, hi],
-                "within_goal": bool(0.5 * alpha <= rate_ <= 1.5 * alpha), "seconds": time.perf_counter() - t0,
+                "within_goal": bool(0.5 * alpha <= rate_ <= 1.5 * alpha), "fired": fired, "shares": shares,
+                "seconds": time.perf_counter() - t0,
             }
         )
         r = rows[-1]
+        by_detector = " ".join(f"{name} {100 * k / max(1, len(decided)):.2f}" for name, k in fired.items())
         print(
             f"{generator:20s} {strategy:5s} {rate:7.0f} Hz {encoder:5.2f} deg {label:9s} decided {r['decided']:5d} "
-            f"FAR {100 * rate_:6.2f} % [{100 * lo:5.2f}, {100 * hi:5.2f}] {'ok' if r['within_goal'] else 'MISS'}",
+            f"FAR {100 * rate_:6.2f} % [{100 * lo:5.2f}, {100 * hi:5.2f}] {'ok' if r['within_goal'] else 'MISS'}  {by_detector}",
             flush=True,
         )
     return rows
@@ -136,7 +150,26 @@ def main() -> int:
             f"{generator}: {sum(r['within_goal'] for r in mine)} of {len(mine)} cells within [0.5, 1.5] x alpha; "
             f"pooled {100 * alarms / max(decided, 1):.2f} %"
         )
+    print()
+    print(detector_table(rows))
     return 0
+
+
+def detector_table(rows: list[dict[str, Any]]) -> str:
+    """Markdown: each detector of the rule's false-alarm rate (%) pooled over the cells of one
+    generator, noise and sampling rate, against its share of alpha (the union bound's budget)."""
+    names = list(rows[0]["shares"]) if rows else []
+    shares = rows[0]["shares"] if rows else {}
+    head = " | ".join(f"{name} (share {100 * shares[name]:.2f})" for name in names)
+    lines = [f"| generator | noise | rate | {head} | rule |", "|---|---|---|" + "---|" * (len(names) + 1)]
+    keys = dict.fromkeys((r["generator"], r["noise"], r["sample_rate_hz"]) for r in rows)
+    for generator, noise, rate in keys:
+        cells = [r for r in rows if (r["generator"], r["noise"], r["sample_rate_hz"]) == (generator, noise, rate)]
+        decided = max(1, sum(r["decided"] for r in cells))
+        rates = " | ".join(f"{100 * sum(r['fired'][name] for r in cells) / decided:.2f}" for name in names)
+        rule = 100 * sum(r["false_alarms"] for r in cells) / decided
+        lines.append(f"| {generator} | {noise} | {rate:.0f} Hz | {rates} | {rule:.2f} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -71,3 +71,25 @@ def test_rewrite_block_replaces_only_between_the_markers(tmp_path: Path) -> None
     twice = tmp_path / "twice.md"
     twice.write_text(f"`{dq.BEGIN}` named in prose\n{dq.BEGIN}\nold\n{dq.END}\n")
     assert not dq.rewrite_block(twice, "x\n")
+
+
+def test_size_grid_counts_each_rule_detector_against_its_share() -> None:
+    """benches/size_grid.py's per-detector rates: only the rule's detectors, only decided
+    curves, and the rule's alarms between the largest detector's and their sum (the rule is
+    `any`). At alpha 0.1 (the largest the L1 boundary, reported beside the rule, is tabled for)
+    a cell of 80 clean curves has alarms to count."""
+    sys.path.insert(0, str(ROOT / "benches"))
+    import size_grid
+
+    grid = [("CST", 2000.0, 0.1, ("white", "white", 0.0)), ("HDT", 2000.0, 0.1, ("t4", "t4", 0.0))]
+    rows = size_grid.run("built-in simulator", 80, 0.1, grid)
+    for row in rows:
+        assert set(row["fired"]) == set(row["shares"]) == {"break", "cusum"}
+        assert sum(row["shares"].values()) == pytest.approx(0.1)
+        assert row["false_alarms"] > 0
+        assert max(row["fired"].values()) <= row["false_alarms"] <= sum(row["fired"].values()) <= 2 * row["decided"]
+    table = size_grid.detector_table(rows).splitlines()
+    assert table[0] == "| generator | noise | rate | break (share 7.50) | cusum (share 2.50) | rule |"
+    assert len(table) == 2 + 2  # header, rule, one row per noise
+    white = next(r for r in rows if r["noise"] == "white")
+    assert table[2].endswith(f"| {100 * white['false_alarms'] / white['decided']:.2f} |")

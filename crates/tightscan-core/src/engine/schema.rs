@@ -254,7 +254,7 @@ pub const RESULT_COLUMNS: &[(&str, ResultType, &str, &str)] = &[
     ("shewhart_max_abs_z", ResultType::Float64, "sigma", "largest standardised line residual after the reference"),
     ("shewhart_alarm_index", ResultType::Int64, "", "sample index of the first residual beyond the limit"),
     ("shewhart_alarm_angle", ResultType::Float64, "deg", "angle of the first residual beyond the limit"),
-    ("pf_alarm", ResultType::Boolean, "", "particle-filter fault test fired: pf_p_value at or below pf_alpha (null unless enabled)"),
+    ("pf_alarm", ResultType::Boolean, "", "particle-filter fault test fired: pf_p_value at or below pf_alpha, and the kink beyond 1.5 encoder steps of torque by the window's end where one step exceeds the noise's sd (or pf_p_value at a hundredth of pf_alpha) (null unless enabled)"),
     ("pf_statistic", ResultType::Float64, "", "largest log Bayes factor over the window, ln BF (fault model against no fault)"),
     ("pf_p_value", ResultType::Float64, "", "p-value of pf_statistic from the shipped null table (white Gaussian noise, by window length), averaged over the whitening's uncertainty (the noise model's log-gain standard error); exp(-pf_statistic) is Ville's bound, valid but conservative"),
     ("pf_fault_probability", ResultType::Float64, "", "posterior probability of the fault mode (the torque rate has jumped) after the window's last sample"),

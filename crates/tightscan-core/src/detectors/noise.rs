@@ -677,15 +677,15 @@ fn pooled_residual_weights(blocks: &[(Vec<f64>, Vec<f64>)], block: usize) -> (We
         _ => {}
     }
     let span = lengths.iter().map(|(l, _)| *l).max().unwrap_or(block);
+    let tables: Vec<Weights> = lengths.iter().map(|(len, _)| cached_residual_weights(*len)).collect();
     let mut pooled = vec![vec![0.0; span]; MAX_AR_ORDER + 1];
     for (h, row) in pooled.iter_mut().enumerate() {
         let total: f64 = lengths.iter().map(|(_, counts)| counts.get(h).copied().unwrap_or(0.0)).sum();
         if total <= 0.0 {
             continue;
         }
-        for (len, counts) in &lengths {
+        for ((_, counts), table) in lengths.iter().zip(&tables) {
             let share = counts.get(h).copied().unwrap_or(0.0) / total;
-            let table = cached_residual_weights(*len);
             if let Some(weights) = table.get(h) {
                 row.iter_mut().zip(weights).for_each(|(r, c)| *r += share * c);
             }

@@ -61,7 +61,7 @@ impl Detector {
         // it is large enough that a step cannot explain it ([`beyond_encoder_artefact`]).
         let resolution = s.encoder_resolution;
         let (dx, dy) = (x[n - 1] - x[0], y[n - 1] - y[0]);
-        let encoder_step = if dx > 0.0 { (dy / dx).abs() * resolution } else { 0.0 };
+        let encoder_step = encoder_step_torque(x, y, resolution);
         let beyond_step = |jump: f64| encoder_step <= 0.0 || jump.abs() > breaks.min_jump_steps * encoder_step;
         // The whitening's own uncertainty: where the AR fit leaves the long-run variance
         // uncertain, the scan is judged by its p-value averaged over it
@@ -133,7 +133,7 @@ impl Detector {
         // with a 0.5 deg encoder under AR(1) 0.85, 35 of 955 clean CST curves alarmed there
         // (stop samples 0.1-2.3 steps from the line, p < 1e-6); the start test's own such
         // alarms find real changes (HDT, 2 kHz, 0.5 deg, 3-15 %: recall 0.953, 0.875 without).
-        let end_alarm = |p_value: f64, alpha: f64, deviation: f64| p_value <= alpha && (beyond_step(deviation) || p_value <= 0.01 * alpha);
+        let end_alarm = |p_value: f64, alpha: f64, deviation: f64| p_value <= alpha && (beyond_step(deviation) || p_value <= ARTEFACT_P_FRACTION * alpha);
         // The stop's own scale: the tool brakes within the peak's sample, and a skew between the
         // torque and angle channels of up to half a sample moves that sample's torque by the
         // torque rate times half a sample's advance, which on a slow channel is many encoder
@@ -234,6 +234,20 @@ impl Detector {
         })
     }
 }
+
+/// Torque of one encoder step along a window's line: the rate between its first and last
+/// samples (`x` the recorded angle, `y` the torque) times the encoder's `resolution`, what an
+/// angle quantisation error of one step moves the torque by; 0 where the angle does not advance.
+pub(super) fn encoder_step_torque(x: &[f64], y: &[f64], resolution: f64) -> f64 {
+    match (x.first(), x.last(), y.first(), y.last()) {
+        (Some(x0), Some(x1), Some(y0), Some(y1)) if x1 - x0 > 0.0 => ((y1 - y0) / (x1 - x0)).abs() * resolution,
+        _ => 0.0,
+    }
+}
+
+/// Fraction of a test's alpha below which its alarm stands whatever its size against an
+/// encoder step (the start test's, and pf's).
+pub(super) const ARTEFACT_P_FRACTION: f64 = 0.01;
 
 /// The sup-LR statistic whose predictive p-value ([`gls_predictive_p_value`], non-increasing
 /// in the statistic) is `alpha`, by bisection: the level the scan's profile must pass where the

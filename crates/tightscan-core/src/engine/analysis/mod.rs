@@ -1190,6 +1190,22 @@ mod tests {
         assert!(own < 1.05, "the fitted line's weighted sd varies by {own}");
     }
 
+    /// The angle a floor-quantising encoder of step `r` records of the shaft's `truth`.
+    fn floor_recorded(truth: &[f64], r: f64) -> Vec<f64> {
+        truth.iter().map(|a| (a / r).floor() * r).collect()
+    }
+
+    /// `n` samples of the shaft's angle from `start`, turning by `advance(i)` after sample i.
+    fn shaft(start: f64, n: usize, advance: impl Fn(usize) -> f64) -> Vec<f64> {
+        (0..n)
+            .scan(start, |angle, i| {
+                let at = *angle;
+                *angle += advance(i);
+                Some(at)
+            })
+            .collect()
+    }
+
     /// A slow encoder (a 0.5 deg step every 17 samples) on a tool that pauses (CSDT): the
     /// samples of the pause are left out, and the tool turned on for 40 samples after the last
     /// rise before it. Each side of the gap is interpolated from its own knots, to a fifth of a
@@ -1206,7 +1222,7 @@ mod tests {
             .iter()
             .map(|&i| if i < 840 { 0.13 + speed * i as f64 } else { 0.13 + speed * 839.0 + 0.2 + speed * (i - 1340) as f64 })
             .collect();
-        let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
+        let recorded = floor_recorded(&truth, r);
         let n = index.len();
         let mut out = Vec::new();
         smooth_angle(&[], &recorded, &index, n, 0.0, &mut out);
@@ -1228,13 +1244,8 @@ mod tests {
     fn a_fast_tool_s_angle_is_not_averaged_through_its_change_of_speed() {
         let r = 0.1;
         let n = 60;
-        let mut truth = Vec::with_capacity(n);
-        let mut angle = 0.037;
-        for t in 0..n {
-            truth.push(angle);
-            angle += 6.0 * (-(t as f64) / 10.0).exp() + 0.3;
-        }
-        let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
+        let truth = shaft(0.037, n, |t| 6.0 * (-(t as f64) / 10.0).exp() + 0.3);
+        let recorded = floor_recorded(&truth, r);
         let index: Vec<usize> = (0..n).collect();
         assert!(sawtooth(&recorded, r), "the slow end makes no sawtooth: the test misses its path");
         let mut out = Vec::new();
@@ -1260,7 +1271,7 @@ mod tests {
                 if t < 0.0 { 1.1 * t } else { 1.1 * t - 0.00125 * t * t }
             };
             let truth: Vec<f64> = (0..before + n).map(|i| (phase + steps(i)) * r + 100.0).collect();
-            let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
+            let recorded = floor_recorded(&truth, r);
             let index: Vec<usize> = (before..before + n).collect();
             let mut out = Vec::new();
             smooth_angle(&recorded[..before], &recorded[before..], &index, n, 0.0, &mut out);
@@ -1281,7 +1292,7 @@ mod tests {
         for speed in [1.03, 0.97, 2.02] {
             let (before, n, tail) = (256, 40, 20);
             let truth: Vec<f64> = (0..before + n + tail).map(|i| 0.37 + speed * r * i as f64).collect();
-            let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
+            let recorded = floor_recorded(&truth, r);
             let index: Vec<usize> = (before..before + n + tail).collect();
             let mut out = Vec::new();
             smooth_angle(&recorded[..before], &recorded[before..], &index, n, 0.0, &mut out);
@@ -1300,13 +1311,8 @@ mod tests {
     fn the_encoder_staircase_is_interpolated_between_its_rises() {
         let r = 0.5;
         let n = 4000;
-        let mut truth = Vec::with_capacity(n);
-        let mut angle = 0.13;
-        for i in 0..n {
-            truth.push(angle);
-            angle += 0.05 - 0.045 * i as f64 / n as f64;
-        }
-        let recorded: Vec<f64> = truth.iter().map(|a| (a / r).floor() * r).collect();
+        let truth = shaft(0.13, n, |i| 0.05 - 0.045 * i as f64 / n as f64);
+        let recorded = floor_recorded(&truth, r);
         let index: Vec<usize> = (0..n).collect();
         let mut out = Vec::new();
         smooth_angle(&[], &recorded, &index, n, 0.0, &mut out);

@@ -8,7 +8,7 @@ use crate::engine::input::Sample;
 use crate::engine::rows::{PfOnset, PfRow};
 use crate::engine::Detector;
 
-use super::breaks::change_start_angle;
+use super::breaks::{change_start_angle, encoder_step_torque, ARTEFACT_P_FRACTION};
 use super::Scratch;
 
 impl Detector {
@@ -86,7 +86,7 @@ impl Detector {
         // does not dwarf, and the check would only drop the noise's own alarms).
         let knot = exact.map(|q| (q.median.ceil() as usize).max(1) + lag).or(res.onset.map(|(mid, ..)| mid + lag));
         let alarm = significant
-            && (p_value <= PF_ARTEFACT_P_FRACTION * self.pf_alpha
+            && (p_value <= ARTEFACT_P_FRACTION * self.pf_alpha
                 || knot.is_none_or(|k| beyond_quantisation(&s.x[..n], &s.y[..n], k, s.encoder_resolution, self.config.breaks.min_jump_steps)));
         // A kink not credited is placed as any other row without an alarm (by the particles).
         let exact = exact.filter(|_| alarm);
@@ -146,14 +146,10 @@ impl Detector {
     }
 }
 
-/// Fraction of `pf_alpha` below which a pf alarm stands whatever its size against the encoder's
-/// step (the start test's rule, `end_alarm` in the break step).
-const PF_ARTEFACT_P_FRACTION: f64 = 0.01;
-
 /// Whether a kink at sample `knot` of the recorded window (`x` the recorded angle, `y` the
 /// torque) could not be the encoder's quantisation: the least-squares line with a change of
 /// slope at the knot moves the torque by the window's end by more than `steps` encoder steps of
-/// torque (the rate over the window times `resolution`), or one step of torque is below the
+/// torque ([`encoder_step_torque`]), or one step of torque is below the
 /// fit's residual sd. Where the quantisation dominates the noise it alone makes kinks: clean
 /// independent-generator curves (2 kHz, 0.5 deg, white noise, 600 a cell, pf_alpha 0.05)
 /// alarmed at 20.5 % (CST) and 15.3 % (HDT), their kinks a median 0.34 and 0.18 steps; faulty
@@ -166,7 +162,7 @@ fn beyond_quantisation(x: &[f64], y: &[f64], knot: usize, resolution: f64, steps
     }
     let rows = x[..n].iter().zip(&y[..n]).map(|(&a, &t)| ([1.0, a - first, (a - at).max(0.0)], t));
     let Some((beta, _, rss)) = crate::detectors::least_squares_3(rows) else { return true };
-    let step = ((y[n - 1] - y[0]) / (last - first)).abs() * resolution;
+    let step = encoder_step_torque(&x[..n], &y[..n], resolution);
     let sd = (rss / (n - 3) as f64).sqrt();
     step <= sd || (beta[2] * (last - at)).abs() > steps * step
 }

@@ -23,9 +23,12 @@ impl Detector {
         }
         let cfg = &self.config.pf;
         let filter = PfConfig { particles: cfg.particles, seed: cfg.seed.wrapping_add(row as u64), keep_track: cfg.friction_track, ..PfConfig::default() };
-        // The noise's growth with the torque as the window bounds it (`window_growth`), not as
-        // the other detectors' floor does; the samples weighed again only where they differ.
-        let growth = window_growth(s.noise.sd_line, &s.xs[..n], &s.y[..n], s.t0);
+        // The shared samples are weighed by the same growth (`window_growth`) with the angle's
+        // quantisation error in the weights; the filter's are weighed again without it
+        // (`weigh_by_growth`), except where that growth is the noise model's own slope (its
+        // intercept above the floor), where the filter has always kept the shared samples and
+        // its calibration was measured so.
+        let growth = s.growth;
         if growth != s.noise.sd_slope {
             s.weigh_by_growth(growth);
         }
@@ -167,49 +170,6 @@ fn beyond_quantisation(x: &[f64], y: &[f64], knot: usize, resolution: f64, steps
     step <= sd || (beta[2] * (last - at)).abs() > steps * step
 }
 
-/// Largest ratio of the noise sd at the window's loudest end to that at its quietest that the
-/// filter's weights take from the fitted sd line ([`window_growth`]).
-const MAX_WINDOW_SD_RATIO: f64 = 10.0;
-
-/// The growth `kappa` of the noise sd with the torque, `sd ~ 1 + kappa T`, that the filter
-/// weighs the window by, from the noise model's fitted sd line `(s0, s1)` (`sd = s0 + s1 T`,
-/// [`crate::detectors::noise::NoiseModel::sd_line`]) over the window's straight line in the
-/// angle `xs` (torque `y` from `t0`, the window's first absolute torque).
-///
-/// Why not the noise model's `sd_slope`: that floors `s0` at a tenth of the loudest 8-sample
-/// block's sd over the rundown and the window, to keep a purely proportional noise from giving
-/// the quiet rundown unbounded weight. But the loudest block is where a heavy tail's spike, the
-/// seating's bend or a pause's relaxation sits: on the independent generator's t4 CSDT curves
-/// (0.01 Nm + 0.4 % of the torque: s1 / s0 = 0.4 per Nm) the line came out at about 0.4, the
-/// floored slope at 0.06-0.2, and the filter, which weighs most the loud end where the change
-/// evidence lies, read the unweighted growth there as a kink. Only the window's samples are
-/// weighed, so the bound that matters is on the sd across the window: `s0` is raised only as
-/// far as keeps the fitted sd at the window's loud end within [`MAX_WINDOW_SD_RATIO`] of its
-/// quiet end (and positive), the same tenth, but of the fitted line's range where the weights
-/// apply. 0 where no growth was found.
-///
-/// Measured (benches/pf_quality.py --trace, 1,799-1,800 clean curves a cell, alpha 0.05):
-/// independent CSDT t4 8.28 -> 5.95 %, CSDT white 7.12 -> 5.73 %, CST white 6.67 -> 5.67 %;
-/// the weighted window's residuals no longer grow along it (mean log sd ratio of its last
-/// third to its first, HDT white: 0.098 -> 0.006). The strong-colour cells fall to the
-/// p-value's own level for iid innovations on the same windows (CST AR(1) 0.9 2.78 -> 1.61 %,
-/// iid 1.33-1.61 %): the mis-weighting had lifted them. The built-in simulator's constant
-/// noise rarely shows a growth, and its cells are as they were.
-pub(super) fn window_growth((s0, s1): (f64, f64), xs: &[f64], y: &[f64], t0: f64) -> f64 {
-    let n = xs.len().min(y.len());
-    if !(s1 > 0.0) || n < 2 {
-        return 0.0;
-    }
-    let (a, b) = crate::detectors::least_squares_line(&xs[..n], &y[..n]);
-    let (x_lo, x_hi) = xs[..n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-    let (t_a, t_b) = ((t0 + a + b * x_lo).max(0.0), (t0 + a + b * x_hi).max(0.0));
-    let (quiet, loud) = (t_a.min(t_b), t_a.max(t_b));
-    let ratio = MAX_WINDOW_SD_RATIO;
-    let bounded = s1 * (loud - ratio * quiet) / (ratio - 1.0);
-    let growth = s1 / s0.max(bounded).max(1e-3 * s1 * loud);
-    if growth.is_finite() && growth > 0.0 { growth } else { 0.0 }
-}
-
 /// How far the shaft lies past the interpolated angle `xs` on average. A floor-quantising
 /// encoder records the shaft anywhere in the step above its count, half a step behind on
 /// average; where `xs` is the recorded angle `x` itself or the engine's centred moving average
@@ -317,7 +277,8 @@ fn beat_free_angle(x: &[f64], index: &[usize], xs: &[f64], step: f64, out: &mut 
 
 #[cfg(test)]
 mod tests {
-    use super::{beat_free_angle, beyond_quantisation, floor_lag, window_growth, MAX_WINDOW_SD_RATIO};
+    use super::super::{window_growth, MAX_WINDOW_SD_RATIO};
+    use super::{beat_free_angle, beyond_quantisation, floor_lag};
     use crate::physics::torque_rate::encoder_resolution;
 
     /// The recorded angle of a floor-quantising encoder (0.1 deg) and its three-sample average

@@ -72,6 +72,11 @@ pub(super) struct Scratch {
     /// The noise's growth with the torque the window is weighed by, `sd ~ 1 + growth T`
     /// ([`window_growth`]; 0 where the noise model found none).
     growth: f64,
+    /// Whether the weights now in `weights` (and the samples `wx`, `wy` weighed by them) carry
+    /// the angle's quantisation error, and whether the shared ones, those every detector but
+    /// the CUSUM and the filter reads, did.
+    quantised_weights: bool,
+    shared_quantised: bool,
     lag: usize,
     wx: Vec<f64>,
     wy: Vec<f64>,
@@ -308,6 +313,7 @@ impl Scratch {
         // the first's 1.0 (benches/README.md, size grid).
         self.growth = window_growth(self.noise.sd_line, &self.xs[..n], &self.y[..n], t0);
         self.weigh_and_whiten(self.growth, true);
+        self.shared_quantised = self.quantised_weights;
         let phi = &self.noise.coefficients;
         self.wf.clear();
         if self.has_force {
@@ -397,6 +403,7 @@ impl Scratch {
     /// change of it. So every detector runs unchanged on the weighted samples.
     fn noise_weights(&mut self, t0: f64, kappa: f64, angle_error: bool) {
         self.weights.clear();
+        self.quantised_weights = false;
         let n = self.n_window;
         if !(kappa > 0.0) || n < 2 {
             return;
@@ -421,6 +428,7 @@ impl Scratch {
         let sd = |level: f64| (1.0 + kappa * level.max(0.0)).hypot(quantisation);
         let reference = sd(mean_level);
         self.weights.extend(self.xs.iter().map(|x| reference / sd(t0 + a + b * x)));
+        self.quantised_weights = quantisation > 0.0;
     }
 
     /// The window weighted and whitened again (`weights`, `wx`, `wy`, the rundown's noise and
@@ -435,6 +443,15 @@ impl Scratch {
     pub(super) fn weigh_by_growth(&mut self, kappa: f64) {
         self.weigh_and_whiten(kappa, false);
         self.gaussianise_heavy_tails();
+    }
+
+    /// The shared samples again (weighed by `growth` with the angle's quantisation error),
+    /// where a detector before the caller weighed them without it.
+    pub(super) fn restore_shared_weights(&mut self) {
+        if self.shared_quantised && !self.quantised_weights {
+            self.weigh_and_whiten(self.growth, true);
+            self.gaussianise_heavy_tails();
+        }
     }
 
     /// The window's angle and torque weighted for noise whose sd grows as `1 + kappa T` and

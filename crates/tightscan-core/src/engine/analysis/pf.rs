@@ -26,11 +26,13 @@ impl Detector {
         // The shared samples are weighed by the same growth (`window_growth`) with the angle's
         // quantisation error in the weights; the filter's are weighed again without it
         // (`weigh_by_growth`), except where that growth is the noise model's own slope (its
-        // intercept above the floor), where the filter has always kept the shared samples and
-        // its calibration was measured so.
+        // intercept above the floor), where the filter has always read the shared samples and
+        // its calibration was measured so (the CUSUM before it may have weighed them without).
         let growth = s.growth;
         if growth != s.noise.sd_slope {
             s.weigh_by_growth(growth);
+        } else {
+            s.restore_shared_weights();
         }
         // The whitened constant: the weights of noise growing with the torque (all 1 without),
         // whitened like the angle and the torque were.

@@ -276,9 +276,25 @@ impl Detector {
         let stops = &s.stops;
         let width = blocks.width;
         let start = s.x[lag];
+        let index = &s.index;
         let touches_stop = |b: usize| {
             let (lo, hi) = (start + b as f64 * width, start + (b + 1) as f64 * width);
-            stops.iter().any(|&(s0, s1)| s0 < hi && s1 >= lo)
+            if stops.iter().any(|&(s0, s1)| s0 < hi && s1 >= lo) {
+                return true;
+            }
+            // A whitened sample within `lag` samples after a stop's gap is whitened with samples
+            // from before the pause, whose noise the pause has made independent of its own: its
+            // innovation has (1 + phi^2) / (1 - phi^2) times the variance (9.5 at phi 0.9), and
+            // it sits at the block's start, where it moves the slope most. The block holding it
+            // is left out. Built-in simulator, CSDT, 2 kHz, 0.5 deg encoder, AR(1) 0.9: 27 of
+            // the CUSUM's 30 false alarms in 2,000 clean curves had their largest z (up to 11)
+            // in the first block after the pause.
+            let st = &blocks.stats[b];
+            if st.n == 0 {
+                return false;
+            }
+            let (first, last) = (st.first + lag, (st.last + lag).min(n - 1));
+            ((first + 1).saturating_sub(lag).max(1)..=last).any(|k| index[k] != index[k - 1] + 1)
         };
         s.usable.clear();
         s.usable.extend((0..n_blocks).filter(|&b| blocks.usable(b) && !touches_stop(b)));

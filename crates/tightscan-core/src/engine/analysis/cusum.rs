@@ -293,8 +293,10 @@ impl Detector {
             if st.n == 0 {
                 return false;
             }
-            let (first, last) = (st.first + lag, (st.last + lag).min(n - 1));
-            ((first + 1).saturating_sub(lag).max(1)..=last).any(|k| index[k] != index[k - 1] + 1)
+            // Sample k was whitened with samples k - lag .. k - 1: a gap between any two of
+            // k - lag .. k for a k of the block.
+            let (first, last) = (st.first + lag, st.last + lag);
+            index.get(first.saturating_sub(lag)..=last).is_some_and(|run| run.windows(2).any(|w| w[1] != w[0] + 1))
         };
         s.usable.clear();
         s.usable.extend((0..n_blocks).filter(|&b| blocks.usable(b) && !touches_stop(b)));

@@ -30,7 +30,11 @@ impl Detector {
         // its calibration was measured so (the CUSUM before it may have weighed them without).
         let growth = s.growth;
         if growth != s.noise.sd_slope {
-            s.weigh_by_growth(growth);
+            // Already so where the shared weights had no quantisation term, or the CUSUM
+            // weighed the window again without it.
+            if s.quantised_weights {
+                s.weigh_by_growth(growth);
+            }
         } else {
             s.restore_shared_weights();
         }

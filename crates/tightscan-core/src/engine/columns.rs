@@ -87,6 +87,7 @@ pub(super) fn build_columns(rows: &[RowResult]) -> Vec<ArrayRef> {
         f(|r| r.alarm().map(|a| a.change_angle)),
         f(|r| r.cusum.as_ref().map(|c| c.max_statistic)),
         f(|r| r.cusum.as_ref().map(|c| c.threshold)),
+        f(|r| r.cusum.as_ref().and_then(|c| c.alpha)),
         f(|r| r.cusum.as_ref().map(|c| c.reference_rate)),
         f(|r| r.cusum.as_ref().map(|c| c.noise_sd)),
         f(|r| r.cusum.as_ref().map(|c| c.noise_df)),

@@ -124,6 +124,9 @@ pub(super) struct CusumRow {
     pub(super) alarm: Option<CusumAlarmRow>,
     pub(super) max_statistic: f64,
     pub(super) threshold: f64,
+    /// The CUSUM's false-alarm probability for this tightening: its share of alpha plus what
+    /// the break scan's encoder-step check left unspent; `None` for a threshold set by hand.
+    pub(super) alpha: Option<f64>,
     pub(super) reference_rate: f64,
     pub(super) noise_sd: f64,
     pub(super) noise_df: f64,

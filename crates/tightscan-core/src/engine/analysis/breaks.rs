@@ -22,6 +22,7 @@ impl Detector {
     pub(super) fn break_row<A: Sample>(&self, angle: &[A], s: &mut Scratch) -> Option<BreakRow> {
         let lag = s.lag;
         let n = s.n_window;
+        s.cusum_extra_alpha = 0.0;
         if n <= lag {
             return None;
         }
@@ -63,6 +64,19 @@ impl Detector {
         let (dx, dy) = (x[n - 1] - x[0], y[n - 1] - y[0]);
         let encoder_step = encoder_step_torque(x, y, resolution);
         let beyond_step = |jump: f64| encoder_step <= 0.0 || jump.abs() > breaks.min_jump_steps * encoder_step;
+        // What the check leaves of the scan's alpha goes to the CUSUM (`cusum_alpha`): on a
+        // clean window the scan alarms at its share, but only the alarms whose jump passes the
+        // check count, and where the encoder step is many times the jump's noise almost none do
+        // (0.5 deg encoders: the scan fired on 0.00-0.15 % of clean curves against a share of
+        // 0.45 %, and the rule on 0.12-0.45 % against its 1 %).
+        if self.scan_share_to_cusum.is_some() && encoder_step > 0.0 && nw > 2 {
+            // The long-run sd of the window's noise in torque units: the whitened line's
+            // innovations over the whitening's gain, on the weights' scale.
+            let gain = (1.0 - phi_sum).abs().max(1e-6);
+            let mean_weight = if s.weights.len() >= n { s.weights[..n].iter().sum::<f64>() / n as f64 } else { 1.0 };
+            let long_run_sd = (line_rss(&wx[..nw], &wy[..nw]) / (nw - 2) as f64).sqrt() / mean_weight.max(1e-12) / gain;
+            s.cusum_extra_alpha = scan_alpha * unspent_scan_share(encoder_step, long_run_sd, nw, breaks.min_jump_steps);
+        }
         // The whitening's own uncertainty: where the AR fit leaves the long-run variance
         // uncertain, the scan is judged by its p-value averaged over it
         // (`sup_lr_predictive_p_value`), with the statistic growing as that variance to the
@@ -243,6 +257,53 @@ pub(super) fn encoder_step_torque(x: &[f64], y: &[f64], resolution: f64) -> f64 
         (Some(x0), Some(x1), Some(y0), Some(y1)) if x1 - x0 > 0.0 => ((y1 - y0) / (x1 - x0)).abs() * resolution,
         _ => 0.0,
     }
+}
+
+/// The share of the break scan's alpha its encoder-step check leaves unspent on a clean window,
+/// for the CUSUM to spend: 1 - [`scan_share_passing_check`] at the check's jump over the jump's
+/// null sd, which for two lines split at the window's middle is 4 `long_run_sd` / sqrt(n) (the
+/// sd of each line's end, 2 / sqrt(n / 2) of the noise's). Only where the CUSUM's own regressor
+/// can take it: the encoder's quantisation, as a torque error `step / sqrt(12)`, at most
+/// [`CUSUM_MAX_QUANTISATION`] of the long-run sd. Its nine-sample averaged angle leaves part of
+/// that error, and the block rates then stray from the noise model: on the white-noise cells
+/// with a 0.5 deg encoder (ratio 0.8-1.1) the CUSUM already ran at 1.6-4.4 times its share of
+/// 0.25 %, and with the scan's share added it claimed 0.9-2.0 % of clean curves; under AR(1)
+/// 0.85 (ratio 0.24-0.34) it held its share, and takes the scan's.
+fn unspent_scan_share(encoder_step: f64, long_run_sd: f64, n: usize, min_jump_steps: f64) -> f64 {
+    if !(long_run_sd > 0.0 && encoder_step > 0.0 && n > 0) || encoder_step / 12f64.sqrt() > CUSUM_MAX_QUANTISATION * long_run_sd {
+        return 0.0;
+    }
+    let jump_sd = 4.0 * long_run_sd / (n as f64).sqrt();
+    1.0 - scan_share_passing_check(min_jump_steps * encoder_step / jump_sd)
+}
+
+/// The largest ratio of the encoder's quantisation (its torque step over sqrt(12)) to the
+/// noise's long-run sd at which the CUSUM takes the break scan's unspent share: its variance a
+/// quarter of the noise's ([`unspent_scan_share`]).
+const CUSUM_MAX_QUANTISATION: f64 = 0.5;
+
+/// Fraction of the break scan's null alarms whose jump passes the encoder-step check, by the
+/// check's jump in units of the jump's null sd (4 sigma_lr / sqrt(n)). Monte Carlo of the
+/// scan on white-noise lines (n 250 and 1,000, alarms at 0.3 and 1 %; `benches/scan_check_share.py`),
+/// the larger of the cells at each point: AR(1) 0.85 noise passes less (0.6 at 4, 0 from 8),
+/// so the table is the upper envelope, which keeps the size at most alpha.
+const SCAN_CHECK_PASSING: [(f64, f64); 11] =
+    [(2.0, 1.0), (3.0, 0.98), (4.0, 0.9), (5.0, 0.5), (6.0, 0.3), (7.0, 0.22), (8.0, 0.15), (10.0, 0.07), (12.0, 0.04), (14.0, 0.02), (16.0, 0.0)];
+
+/// [`SCAN_CHECK_PASSING`] at `steps` (linear between its points; 1 below the first, 0 beyond
+/// the last).
+fn scan_share_passing_check(steps: f64) -> f64 {
+    let first = SCAN_CHECK_PASSING[0];
+    if !(steps > first.0) {
+        return first.1;
+    }
+    for w in SCAN_CHECK_PASSING.windows(2) {
+        let ((x0, y0), (x1, y1)) = (w[0], w[1]);
+        if steps <= x1 {
+            return y0 + (y1 - y0) * (steps - x0) / (x1 - x0);
+        }
+    }
+    0.0
 }
 
 /// Fraction of a test's alpha below which its alarm stands whatever its size against an
@@ -506,6 +567,34 @@ fn scan_sensitivity(nw: usize, lag1: f64, measured: fn(usize, f64) -> f64) -> f6
 #[cfg(test)]
 #[allow(clippy::expect_used)] // a failed expect is a failed test
 mod tests {
+    /// The share of the scan's alpha the CUSUM takes: none where the check's jump is within two
+    /// of its null sd (the scan spends its share), all of it from sixteen (a 0.5 deg encoder
+    /// against low noise), falling in between; and none where the encoder's quantisation is
+    /// more than half the noise's long-run sd, whatever the jump's noise.
+    #[test]
+    fn the_scan_hands_the_cusum_only_the_share_its_encoder_check_leaves() {
+        let mut last = 1.0;
+        for k in 0..=200 {
+            let share = scan_share_passing_check(k as f64 * 0.1);
+            assert!(share <= last && (0.0..=1.0).contains(&share), "{share} at {}", k as f64 * 0.1);
+            last = share;
+        }
+        assert_eq!(scan_share_passing_check(1.0), 1.0);
+        assert_eq!(scan_share_passing_check(16.0), 0.0);
+        assert_eq!(scan_share_passing_check(f64::NAN), 1.0);
+        // n = 400: the jump's null sd is a fifth of the long-run sd, and 1.5 steps over it is
+        // 7.5 steps per long-run sd.
+        let (n, long_run_sd) = (400, 1.0);
+        assert_eq!(unspent_scan_share(0.2, long_run_sd, n, 1.5), 0.0);
+        assert!((unspent_scan_share(1.0, long_run_sd, n, 1.5) - (1.0 - scan_share_passing_check(7.5))).abs() < 1e-12);
+        // n = 1,600: the jump's null sd a tenth of it, 1.5 steps of 1.2 over it 18.
+        assert_eq!(unspent_scan_share(1.2, long_run_sd, 1600, 1.5), 1.0);
+        // Quantisation 1.8 / sqrt(12) = 0.52 of the long-run sd: the CUSUM's regressor cannot take it.
+        assert_eq!(unspent_scan_share(1.8, long_run_sd, n, 1.5), 0.0);
+        assert_eq!(unspent_scan_share(0.0, long_run_sd, n, 1.5), 0.0);
+        assert_eq!(unspent_scan_share(1.0, 0.0, n, 1.5), 0.0);
+    }
+
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};

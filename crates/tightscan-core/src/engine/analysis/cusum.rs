@@ -133,26 +133,32 @@ impl CusumCalibration {
     /// spread: the factor `c >= 1` brings that average back to the threshold's own probability
     /// (bisection). The probability is the exact finite-horizon one over `steps` blocks, not
     /// Siegmund's stationary rate, whose dependence on h is that of an endless stream.
-    pub(crate) fn predictive_scale(&self, steps: usize, gain_log_se: f64, scale_log_var: f64) -> f64 {
+    ///
+    /// `target_ratio` above 1 asks for that many times the threshold's probability instead
+    /// (the break scan's unspent share added to the CUSUM's): the scale, down to the table's
+    /// smallest (e^-1), at which the average reaches it.
+    pub(crate) fn predictive_scale(&self, steps: usize, gain_log_se: f64, scale_log_var: f64, target_ratio: f64) -> f64 {
         use crate::detectors::noise::NORMAL_NODES;
         let tau = (gain_log_se.max(0.0).powi(2) + scale_log_var.max(0.0)).sqrt();
         let Some(nominal) = self.false_alarm(steps, 1.0) else { return 1.0 };
-        if !(tau > 0.0) {
+        let larger = target_ratio > 1.0;
+        if !larger && !(tau > 0.0) {
             return 1.0;
         }
+        let target = if larger { nominal * target_ratio } else { nominal };
         let averaged = |c: f64| -> f64 {
             NORMAL_NODES.iter().map(|(z, w)| w * self.false_alarm(steps, c * (-tau * z).exp()).unwrap_or(0.0)).sum()
         };
-        let (mut lo, mut hi) = (1.0_f64, (6.0 * tau).exp());
-        if averaged(lo) <= nominal {
-            return 1.0;
+        let (mut lo, mut hi) = (if larger { SCALE_GRID_START.exp() } else { 1.0_f64 }, (6.0 * tau).exp());
+        if averaged(lo) <= target {
+            return lo;
         }
-        if averaged(hi) > nominal {
+        if averaged(hi) > target {
             return hi;
         }
         for _ in 0..40 {
             let mid = 0.5 * (lo + hi);
-            if averaged(mid) > nominal {
+            if averaged(mid) > target {
                 lo = mid;
             } else {
                 hi = mid;
@@ -384,7 +390,16 @@ impl Detector {
         let threshold = self.cusum_calibration.threshold(monitor.len()).unwrap_or(self.threshold);
         let block_samples = monitor.iter().map(|&b| blocks.stats[b].n).sum::<usize>() / monitor.len().max(1);
         let sensitivity = block_rate_sensitivity(block_samples, s.noise.lag1_autocorrelation());
-        let predictive = self.cusum_calibration.predictive_scale(monitor.len(), sensitivity * s.noise.gain_log_se, scale_log_var);
+        // Where the break scan's encoder-step check leaves part of its share unspent
+        // (`Detector::break_row`), the CUSUM is held to its own share plus that part: the
+        // scale that brings the averaged alarm probability to it is then below 1 (h and kappa
+        // scaled down together, an exact CUSUM of the same z's).
+        let target_ratio = self.scan_share_to_cusum.map_or(1.0, |share| (share + s.cusum_extra_alpha) / share);
+        let alpha = match self.cusum_calibration.source {
+            ThresholdSource::FalseAlarm(share) => Some(share * target_ratio),
+            ThresholdSource::Fixed(_) => None,
+        };
+        let predictive = self.cusum_calibration.predictive_scale(monitor.len(), sensitivity * s.noise.gain_log_se, scale_log_var, target_ratio);
         s.z.clear();
         s.z.extend(monitor.iter().map(|&b| z_of(b) / (inflate * predictive)));
         let mut cusum = TwoSidedCusum::new(cfg.cusum.kappa, threshold);
@@ -422,6 +437,7 @@ impl Detector {
             alarm,
             max_statistic: cusum.max_statistic(),
             threshold,
+            alpha,
             reference_rate,
             noise_sd: noise_sd * inflate * predictive,
             noise_df: df,
@@ -434,7 +450,36 @@ impl Detector {
 
 #[cfg(test)]
 mod tests {
-    use super::block_rate_sensitivity;
+    use super::{block_rate_sensitivity, CusumCalibration, ThresholdSource};
+
+    /// The CUSUM held to more than its share (the break scan's unspent part added): the scale
+    /// it divides its z's by brings the exact alarm probability over the monitored blocks to
+    /// that many times the threshold's, with and without the widening's spread, and a ratio of
+    /// 1 leaves the scale the widening alone gives.
+    #[test]
+    fn a_larger_alpha_scales_the_cusum_to_its_exact_alarm_probability() {
+        use crate::detectors::cusum::cusum_false_alarm_probabilities;
+        use crate::detectors::noise::NORMAL_NODES;
+        let (kappa, share) = (0.5, 0.0025);
+        let calibration = CusumCalibration::shared(ThresholdSource::FalseAlarm(share), kappa, 40);
+        for steps in [6, 18, 30] {
+            let h = calibration.threshold(steps).unwrap_or(f64::NAN);
+            let exact = |c: f64| cusum_false_alarm_probabilities(h * c, kappa * c, steps).map_or(f64::NAN, |p| p[steps - 1]);
+            assert!((exact(1.0) / share - 1.0).abs() < 1e-3, "{steps} blocks: threshold's probability {}", exact(1.0));
+            for ratio in [1.8, 2.8, 4.0] {
+                let c = calibration.predictive_scale(steps, 0.0, 0.0, ratio);
+                assert!(c < 1.0, "{steps} blocks, ratio {ratio}: scale {c}");
+                let p = exact(c);
+                assert!((p / (share * ratio) - 1.0).abs() < 0.01, "{steps} blocks, ratio {ratio}: {p} against {}", share * ratio);
+                // With the widening: the average over the scale's spread.
+                let tau = 0.15_f64;
+                let c = calibration.predictive_scale(steps, tau, 0.0, ratio);
+                let averaged: f64 = NORMAL_NODES.iter().map(|(z, w)| w * exact(c * (-tau * z).exp())).sum();
+                assert!((averaged / (share * ratio) - 1.0).abs() < 0.02, "{steps} blocks, ratio {ratio}, widened: {averaged}");
+            }
+            assert_eq!(calibration.predictive_scale(steps, 0.0, 0.0, 1.0), 1.0);
+        }
+    }
 
     /// The closed form against the table of benches/README.md (the same ratio computed by
     /// numpy from the ARMA(1, 1)'s MA weights and the block's residual maker): a short block

@@ -89,6 +89,9 @@ pub(super) struct Scratch {
     /// found once, for the break scan's encoder-step check and the particle filter's angle.
     encoder_resolution: f64,
     angle_averaged: bool,
+    /// Share of alpha the break scan cannot spend under its encoder-step check, which the
+    /// CUSUM spends instead ([`Detector::break_row`]); 0 until the scan has run.
+    cusum_extra_alpha: f64,
     /// Recorded angles just before the window (window coordinates), for [`smooth_angle`].
     context: Vec<f64>,
     /// `xs` averaged in time and whitened (weighted as `wx`): the CUSUM's block regressor
@@ -903,8 +906,9 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, origin: f
         return (found, false);
     }
     let half = ((resolution / step).ceil() as usize).min(32);
-    // Within the window only: past it the tool brakes to the target, and an average across
-    // that change of speed would bend the angle of the window's last samples and of the tail.
+    // Within the window only (its last samples excepted, below): past it the tool brakes to the
+    // target, and an average across that change of speed would bend the angle of the window's
+    // last samples and of the tail.
     let mut prefix = Vec::with_capacity(n + 1);
     prefix.push(0.0);
     for v in &x[..n] {
@@ -919,12 +923,36 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, origin: f
     // 0.1 deg encoder, t4 noise, 1,351 clean curves decided: 3.03 % false alarms, 0.81 % with
     // the recorded angle there; the start test at p <= 0.01 on 6.8 % of another set's curves,
     // 0.7 % without the average).
+    // The window's last samples average across its end into the tail (the samples up to the
+    // peak) where the tail goes on without a gap. The window ends where the recorded angle
+    // last stays below the trim's limit, which is always the last sample of an encoder level:
+    // its shaft sits near the top of the cell, the recorded angle a whole step behind where
+    // the window's other samples are half a step behind on average. The average narrowed to
+    // the window kept that sample as recorded and the one before it half so: on the built-in
+    // simulator's HDT curves (2 kHz, 0.5 deg encoder, white noise, 300) the last sample's
+    // angle lay 0.17 deg (a third of a step) behind the rest against the true angle, the one
+    // before it 0.06 deg, and the CUSUM's last block read the steeper torque against it as a
+    // rise of friction (its z had mean +1.05, 0.00 on the true angle). Across the end: -0.006
+    // and +0.006 deg. The tail's first samples sit as far the other way (the first sample of
+    // the next level). Not where the tool has slowed within the average's reach past the end
+    // (its advance there short of the one before by more than a step and a half).
+    let m = x.len().min(index.len());
     out.extend((0..n).map(|i| {
         let h = half.min(i).min(n - 1 - i);
-        if x[i - h..=i + h].windows(2).any(|w| w[1] - w[0] >= SAWTOOTH_STEPS * resolution) {
+        let across = n - 1 - i < half
+            && i >= half
+            && i + half < m
+            && index[i + half] == index[i] + half
+            && (x[i] - x[i - half]) - (x[i + half] - x[i]) <= 1.5 * resolution;
+        let (lo, hi) = if across { (i - half, i + half) } else { (i - h, i + h) };
+        if x[lo..=hi].windows(2).any(|w| w[1] - w[0] >= SAWTOOTH_STEPS * resolution) {
             return x[i];
         }
-        (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64
+        if across {
+            x[lo..=hi].iter().sum::<f64>() / (2 * half + 1) as f64
+        } else {
+            (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64
+        }
     }));
     out.extend_from_slice(&x[n..]);
     (found, true)
@@ -1330,6 +1358,41 @@ mod tests {
         smooth_angle(&[], &recorded, &index, n, 0.0, &mut out);
         let worst = out[..20].iter().zip(&truth).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         assert!(worst < r, "the fast start's angle off by {:.2} steps", worst / r);
+    }
+
+    /// A 0.5 deg encoder on a tool turning 0.27 deg a sample (2 kHz): the count rises every
+    /// sample or two, and the window's angle is the recorded one averaged over two samples
+    /// either side. The window ends, as the phase finder's trim ends it, at the last sample of
+    /// an encoder level, whose shaft is near the top of the cell. Averaged with the tail after
+    /// it, the window's last samples are as far behind the shaft as the others (to 0.03 deg,
+    /// over phases of the encoder); narrowed to the window the last was 0.13 deg further behind
+    /// (0.17 on the built-in simulator's HDT curves), which the CUSUM's last block read as a
+    /// rise of the torque rate.
+    #[test]
+    fn the_window_s_last_samples_are_averaged_across_its_end() {
+        let r = 0.5;
+        let (n_all, tail) = (260, 20);
+        let mut offsets = [0.0; 2];
+        let phases = [0.03, 0.17, 0.31, 0.46, 0.62, 0.77, 0.91];
+        for phase in phases {
+            let truth = shaft(100.0 + phase * r, n_all, |_| 0.27);
+            let recorded = floor_recorded(&truth, r);
+            // The last sample of a level, with `tail` samples after it.
+            let n = (1..n_all - tail).rev().find(|&i| recorded[i] > recorded[i - 1]).unwrap_or_else(|| panic!("no rise"));
+            let (x, t) = (&recorded[..n + tail], &truth[..n + tail]);
+            let index: Vec<usize> = (0..x.len()).collect();
+            let mut out = Vec::new();
+            let (_, averaged) = smooth_angle(&[], x, &index, n, 0.0, &mut out);
+            assert!(averaged, "phase {phase}: not the moving average's path");
+            let error = |i: usize| out[i] - t[i];
+            let inner = (20..n - 20).map(error).sum::<f64>() / (n - 40) as f64;
+            for (k, offset) in offsets.iter_mut().enumerate() {
+                *offset += (error(n - 1 - k) - inner) / phases.len() as f64;
+            }
+        }
+        for (k, offset) in offsets.iter().enumerate() {
+            assert!(offset.abs() < 0.03, "sample {} before the window's end: {offset:.3} deg off the rest", k);
+        }
     }
 
     /// A tool slowing through one encoder step a sample (HDT near the target): the beat rises,

@@ -51,10 +51,9 @@ pub struct Detector {
     /// Its threshold by monitored block count, and the tables of its widening.
     cusum_calibration: std::sync::Arc<analysis::CusumCalibration>,
     break_alpha: f64,
-    /// The CUSUM's share of alpha where the break scan may hand it what its encoder-step
-    /// check leaves unspent: both in the rule, each at its share (no `break_alpha`, no fixed
-    /// CUSUM threshold).
-    scan_share_to_cusum: Option<f64>,
+    /// Whether the break scan hands the CUSUM what its encoder-step check leaves unspent:
+    /// both in the rule, each at its share (no `break_alpha`, no fixed CUSUM threshold).
+    scan_share_to_cusum: bool,
     /// Share of `break_alpha` the episode scan gets: the configured one, or 0 where it or the
     /// scan's share would fall below the shipped tables' smallest alpha.
     episode_fraction: f64,
@@ -247,14 +246,10 @@ impl Detector {
                 None => cusum_threshold_for_steps(alpha, c.kappa, most_monitored)?,
             },
         };
-        let scan_share_to_cusum = match source {
-            ThresholdSource::FalseAlarm(alpha)
-                if config.breaks.alpha.is_none() && d.detectors.contains(&DetectorKind::Break) && d.detectors.contains(&DetectorKind::Cusum) =>
-            {
-                Some(alpha)
-            }
-            _ => None,
-        };
+        let scan_share_to_cusum = matches!(source, ThresholdSource::FalseAlarm(_))
+            && config.breaks.alpha.is_none()
+            && d.detectors.contains(&DetectorKind::Break)
+            && d.detectors.contains(&DetectorKind::Cusum);
         Ok(Self { config, threshold, cusum_calibration, break_alpha, scan_share_to_cusum, episode_fraction, l1_alpha, l1_critical_value, kde_alpha, pf_alpha })
     }
 

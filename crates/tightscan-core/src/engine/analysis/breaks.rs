@@ -69,12 +69,14 @@ impl Detector {
         // check count, and where the encoder step is many times the jump's noise almost none do
         // (0.5 deg encoders: the scan fired on 0.00-0.15 % of clean curves against a share of
         // 0.45 %, and the rule on 0.12-0.45 % against its 1 %).
-        if self.scan_share_to_cusum.is_some() && encoder_step > 0.0 && nw > 2 {
+        // The whitened window's one-line RSS: here, and in the curvature guard's comparison.
+        let whitened_line_rss = line_rss(&wx[..nw], &wy[..nw]);
+        if self.scan_share_to_cusum && encoder_step > 0.0 && nw > 2 {
             // The long-run sd of the window's noise in torque units: the whitened line's
             // innovations over the whitening's gain, on the weights' scale.
             let gain = (1.0 - phi_sum).abs().max(1e-6);
             let mean_weight = if s.weights.len() >= n { s.weights[..n].iter().sum::<f64>() / n as f64 } else { 1.0 };
-            let long_run_sd = (line_rss(&wx[..nw], &wy[..nw]) / (nw - 2) as f64).sqrt() / mean_weight.max(1e-12) / gain;
+            let long_run_sd = (whitened_line_rss / (nw - 2) as f64).sqrt() / mean_weight.max(1e-12) / gain;
             s.cusum_extra_alpha = scan_alpha * unspent_scan_share(encoder_step, long_run_sd, nw, breaks.min_jump_steps);
         }
         // The whitening's own uncertainty: where the AR fit leaves the long-run variance
@@ -188,7 +190,7 @@ impl Detector {
 
         let (curvature_p_value, smooth_fits_better) = match curvature(&s.xs[..n], &s.weights, wx, &wy[..nw], &s.noise.coefficients, s.snug_x, &mut s.line_residuals) {
             Some((p, rss_quad, rss_drift)) => {
-                let mut rss_break = line_rss(&wx[..nw], &wy[..nw]) * (-scan.statistic / nw as f64).exp();
+                let mut rss_break = whitened_line_rss * (-scan.statistic / nw as f64).exp();
                 if let Some((_, first_after, _)) = head.filter(|_| head_alarm) {
                     // The head's own line and the line after it, as the scan's two lines.
                     let k = first_after - lag;
@@ -196,7 +198,7 @@ impl Detector {
                 }
                 if let Some(e) = episode.filter(|e| e.alarm) {
                     // The line with the episode's level shift, as another break.
-                    rss_break = rss_break.min(line_rss(&wx[..nw], &wy[..nw]) * (-e.statistic / nw as f64).exp());
+                    rss_break = rss_break.min(whitened_line_rss * (-e.statistic / nw as f64).exp());
                 }
                 (Some(p), rss_quad <= rss_break && rss_quad <= rss_drift)
             }
@@ -567,6 +569,11 @@ fn scan_sensitivity(nw: usize, lag1: f64, measured: fn(usize, f64) -> f64) -> f6
 #[cfg(test)]
 #[allow(clippy::expect_used)] // a failed expect is a failed test
 mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
     /// The share of the scan's alpha the CUSUM takes: none where the check's jump is within two
     /// of its null sd (the scan spends its share), all of it from sixteen (a 0.5 deg encoder
     /// against low noise), falling in between; and none where the encoder's quantisation is
@@ -594,11 +601,6 @@ mod tests {
         assert_eq!(unspent_scan_share(0.0, long_run_sd, n, 1.5), 0.0);
         assert_eq!(unspent_scan_share(1.0, 0.0, n, 1.5), 0.0);
     }
-
-    use super::*;
-    use rand::SeedableRng;
-    use rand_distr::{Distribution, StandardNormal};
-    use rand_xoshiro::Xoshiro256PlusPlus;
 
     /// (rss of the quadratic, smallest rss of a drift) of a window whose torque is a line plus
     /// `bend(x)`, with white noise of sd 0.02, 300 samples over 30 deg, the snug 15 deg before it.

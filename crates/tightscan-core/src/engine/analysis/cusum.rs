@@ -394,10 +394,9 @@ impl Detector {
         // (`Detector::break_row`), the CUSUM is held to its own share plus that part: the
         // scale that brings the averaged alarm probability to it is then below 1 (h and kappa
         // scaled down together, an exact CUSUM of the same z's).
-        let target_ratio = self.scan_share_to_cusum.map_or(1.0, |share| (share + s.cusum_extra_alpha) / share);
-        let alpha = match self.cusum_calibration.source {
-            ThresholdSource::FalseAlarm(share) => Some(share * target_ratio),
-            ThresholdSource::Fixed(_) => None,
+        let (alpha, target_ratio) = match self.cusum_calibration.source {
+            ThresholdSource::FalseAlarm(share) => (Some(share + s.cusum_extra_alpha), (share + s.cusum_extra_alpha) / share),
+            ThresholdSource::Fixed(_) => (None, 1.0),
         };
         let predictive = self.cusum_calibration.predictive_scale(monitor.len(), sensitivity * s.noise.gain_log_se, scale_log_var, target_ratio);
         s.z.clear();

@@ -90,7 +90,7 @@ pub(super) struct Scratch {
     encoder_resolution: f64,
     angle_averaged: bool,
     /// Share of alpha the break scan cannot spend under its encoder-step check, which the
-    /// CUSUM spends instead ([`Detector::break_row`]); 0 until the scan has run.
+    /// CUSUM spends instead ([`Detector::break_row`]; 0 unless `scan_share_to_cusum`).
     cusum_extra_alpha: f64,
     /// Recorded angles just before the window (window coordinates), for [`smooth_angle`].
     context: Vec<f64>,

@@ -909,9 +909,12 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, origin: f
     // Within the window only (its last samples excepted, below): past it the tool brakes to the
     // target, and an average across that change of speed would bend the angle of the window's
     // last samples and of the tail.
-    let mut prefix = Vec::with_capacity(n + 1);
+    // (The prefix sums reach `half` samples into the tail, for the window's last samples.)
+    let m = x.len().min(index.len());
+    let summed = (n + half).min(m).max(n);
+    let mut prefix = Vec::with_capacity(summed + 1);
     prefix.push(0.0);
-    for v in &x[..n] {
+    for v in &x[..summed] {
         prefix.push(prefix[prefix.len() - 1] + v);
     }
     // A sample whose average spans a step of SAWTOOTH_STEPS or more keeps its recorded angle: an
@@ -936,7 +939,6 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, origin: f
     // and +0.006 deg. The tail's first samples sit as far the other way (the first sample of
     // the next level). Not where the tool has slowed within the average's reach past the end
     // (its advance there short of the one before by more than a step and a half).
-    let m = x.len().min(index.len());
     out.extend((0..n).map(|i| {
         let h = half.min(i).min(n - 1 - i);
         let across = n - 1 - i < half
@@ -948,11 +950,7 @@ fn smooth_angle(context: &[f64], x: &[f64], index: &[usize], n: usize, origin: f
         if x[lo..=hi].windows(2).any(|w| w[1] - w[0] >= SAWTOOTH_STEPS * resolution) {
             return x[i];
         }
-        if across {
-            x[lo..=hi].iter().sum::<f64>() / (2 * half + 1) as f64
-        } else {
-            (prefix[i + h + 1] - prefix[i - h]) / (2 * h + 1) as f64
-        }
+        (prefix[hi + 1] - prefix[lo]) / (hi + 1 - lo) as f64
     }));
     out.extend_from_slice(&x[n..]);
     (found, true)

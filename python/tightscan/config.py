@@ -111,9 +111,11 @@ class BreakConfig:
     in the window makes the torque jump by the clamp force times the change. 0 turns it off.
     An intermittent friction fault leaves a stretch of the window off the line, which returns to
     it after: a pulse, not a break, and it may come back. The episode scan looks for up to three
-    such stretches (at least three samples each, inside the window, not at a pause), with ``episode_fraction`` of ``alpha``, where
-    the window's noise has a lag-1 autocorrelation under 0.7 (else the scan keeps that share),
-    and where that share and the scan's are both 0.001 or more (the shipped tables' range: a
+    such stretches (at least three samples each, inside the window, not at a pause), with
+    ``episode_fraction`` of ``alpha`` (half of it where the window's noise has a lag-1
+    autocorrelation of 0.7 or more, the scan keeping the other half; the stretches are whitened
+    as the samples are, so strong colour does not hide them), where that share and the scan's
+    are both 0.001 or more (the shipped tables' range: a
     rule ``alpha`` of about 0.0045 and up with the default split; below it the scan keeps the
     share). 0 turns it off."""
 

@@ -482,12 +482,6 @@ pub fn sup_lr_p_value(n: usize, statistic: f64) -> f64 {
     table_p_value(&SUP_LR_QUANTILES, n, statistic)
 }
 
-/// Critical value at `alpha` for n samples from `table` (as [`sup_lr_critical_value`]);
-/// `alpha` must lie within [`TABLE_ALPHA`].
-pub(crate) fn table_critical_value(table: &[[f64; 8]; 8], n: usize, alpha: f64) -> f64 {
-    interpolate(table, n, |row| interpolate_alpha(row, alpha))
-}
-
 /// p-value of `statistic` for n samples from `table` (as [`sup_lr_p_value`]).
 pub(crate) fn table_p_value(table: &[[f64; 8]; 8], n: usize, statistic: f64) -> f64 {
     let quantiles: [f64; 8] = std::array::from_fn(|j| interpolate(table, n, |row| row[j]));

@@ -303,11 +303,17 @@ pub fn simulate_gls_quantiles(n: usize, phi: f64, reps: usize, seed: u64) -> Vec
 /// to [`GLS_PHI`]; an AR(p) model is read as the AR(1) of the same gain, whose whitened step
 /// has the same level after its first samples).
 pub fn gls_quantiles(n: usize, phi_sum: f64) -> [f64; 8] {
+    quantiles_by_phi(|j| if j == 0 { &SUP_LR_QUANTILES } else { &GLS_SUP_LR_QUANTILES[j - 1] }, n, phi_sum)
+}
+
+/// The null quantiles ([`TABLE_ALPHA`]) of a statistic tabulated at each of [`GLS_PHI`]
+/// (`table(j)` the table at `GLS_PHI[j]`, rows [`TABLE_N`](crate::detectors::breakpoint::TABLE_N)),
+/// for n samples and AR coefficients summing to `phi_sum`, interpolated as [`gls_quantiles`] says.
+pub(crate) fn quantiles_by_phi<'a>(table: impl Fn(usize) -> &'a [[f64; 8]; 8], n: usize, phi_sum: f64) -> [f64; 8] {
     let last = GLS_PHI[GLS_PHI.len() - 1];
     let phi = if phi_sum.is_finite() { phi_sum.clamp(0.0, last) } else { 0.0 };
     let j = (1..GLS_PHI.len()).find(|&j| phi <= GLS_PHI[j]).unwrap_or(GLS_PHI.len() - 1);
     let t = (phi - GLS_PHI[j - 1]) / (GLS_PHI[j] - GLS_PHI[j - 1]);
-    let table = |j: usize| if j == 0 { &SUP_LR_QUANTILES } else { &GLS_SUP_LR_QUANTILES[j - 1] };
     std::array::from_fn(|c| {
         let (a, b) = (interpolate(table(j - 1), n, |row| row[c]), interpolate(table(j), n, |row| row[c]));
         a + t * (b - a)
@@ -323,11 +329,16 @@ pub fn gls_critical_value(n: usize, phi_sum: f64, alpha: f64) -> f64 {
 /// [`crate::detectors::breakpoint::sup_lr_predictive_p_value`] is for the two-line scan
 /// (`gain_log_se` times the statistic's sensitivity: the caller's).
 pub fn gls_predictive_p_value(n: usize, phi_sum: f64, statistic: f64, gain_log_se: f64) -> f64 {
-    let q = gls_quantiles(n, phi_sum);
+    quantiles_predictive_p_value(&gls_quantiles(n, phi_sum), statistic, gain_log_se)
+}
+
+/// p-value of `statistic` from its null quantiles `q` (columns [`TABLE_ALPHA`]), averaged over
+/// the whitening's uncertainty as [`gls_predictive_p_value`] is.
+pub(crate) fn quantiles_predictive_p_value(q: &[f64; 8], statistic: f64, gain_log_se: f64) -> f64 {
     if !(gain_log_se > 0.0) {
-        return quantiles_p_value(&q, statistic);
+        return quantiles_p_value(q, statistic);
     }
-    crate::detectors::noise::NORMAL_NODES.iter().map(|(z, w)| w * quantiles_p_value(&q, statistic * (-2.0 * gain_log_se * z).exp())).sum()
+    crate::detectors::noise::NORMAL_NODES.iter().map(|(z, w)| w * quantiles_p_value(q, statistic * (-2.0 * gain_log_se * z).exp())).sum()
 }
 
 #[cfg(test)]

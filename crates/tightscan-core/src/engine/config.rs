@@ -60,8 +60,9 @@ pub struct BreakConfig {
     /// Share of the break detector's alpha given to the episode scan
     /// ([`crate::detectors::episode`]: a stretch of the window off the line that the line
     /// before and after it shares, as an intermittent friction fault leaves); 0 switches it off.
-    /// Where the window's noise is strongly coloured the scan keeps this share (see
-    /// `engine/analysis/breaks.rs`, `EPISODE_MAX_LAG1`).
+    /// Where the window's noise is strongly coloured (lag-1 0.7 or more) the scan runs at half
+    /// this share and the break scan keeps the rest (`engine/analysis/breaks.rs`,
+    /// `EPISODE_STRONG_COLOUR_SHARE`).
     pub episode_fraction: f64,
 }
 

@@ -4,7 +4,7 @@
 
 use crate::detectors::{least_squares_3, least_squares_3_from_sums, least_squares_line as line, least_squares_line_through};
 use crate::detectors::episode::{episode_critical_value, episode_predictive_p_value, episode_scan};
-use crate::detectors::breakpoint::{min_segment, tail_test, whitening_sensitivity};
+use crate::detectors::breakpoint::{min_segment, tail_test};
 use crate::detectors::gls_breakpoint::{gls_critical_value, gls_predictive_p_value, gls_sup_lr_scan, gls_whitening_sensitivity};
 use crate::engine::input::Sample;
 use crate::engine::rows::BreakRow;
@@ -29,10 +29,8 @@ impl Detector {
         let (wx, wy) = (&s.wx[lag..], &s.wy[lag..]);
         let nw = n - lag;
         let breaks = &self.config.breaks;
-        // The episode scan's share goes back to the scan where the noise is strongly coloured
-        // ([`EPISODE_MAX_LAG1`]).
         let lag1 = s.noise.lag1_autocorrelation();
-        let episode_fraction = if lag1 >= EPISODE_MAX_LAG1 { 0.0 } else { self.episode_fraction };
+        let episode_fraction = if lag1 >= EPISODE_STRONG_COLOUR_LAG1 { self.episode_fraction * EPISODE_STRONG_COLOUR_SHARE } else { self.episode_fraction };
         let scan_alpha = self.break_alpha * (1.0 - breaks.tail_fraction - breaks.head_fraction - episode_fraction);
         // A window too short for the scan gets no break row, the end and start tests included.
         // Running them alone there found 5 of 600 late HDT rises on the independent generator
@@ -93,22 +91,26 @@ impl Detector {
         // shares, as an intermittent friction fault leaves (`detectors::episode`). Not where the
         // tool restarts: after a pause, or from a window that starts after a controller step.
         let episode_alpha = self.break_alpha * episode_fraction;
-        // The episode scan's statistic is of the two-line kind: the two-line scan's sensitivity
-        // (its own is 0-0.2 lower, so this is conservative for it).
-        let episode_se = s.noise.gain_log_se * scan_sensitivity(nw, lag1, whitening_sensitivity);
+        // The episode scan is a GLS regression as the break scan is: the GLS scan's sensitivity
+        // to the whitening's error. (Its own, measured as the GLS scan's was, is lower under
+        // strong colour, 0.38 against 0.54 at n 250 and phi 0.85; with it the independent
+        // generator's 500 Hz CST cells under AR(1) 0.85-0.9 claimed 1.5-2.0 % of clean curves,
+        // windows of a few hundred samples whose AR fit is less sure than its standard error
+        // says.)
+        let episode_se = s.noise.gain_log_se * scan_sensitivity(nw, lag1, gls_whitening_sensitivity);
         let episode = if episode_fraction > 0.0 {
             s.transients.clear();
             if !s.starts_at_level {
                 s.transients.push(0);
             }
             s.transients.extend((lag..n.saturating_sub(1)).filter(|&k| s.index[k + 1] > s.index[k] + 1).map(|k| k + 1 - lag));
-            episode_scan(&wx[..nw], &wy[..nw], &s.transients, &mut s.episode_prefix)
+            episode_scan(&wx[..nw], &wy[..nw], &s.noise.coefficients, &s.transients, &mut s.episode_prefix)
         } else {
             None
         };
         let episode = episode.and_then(|scan| {
-            let critical = episode_critical_value(nw, episode_alpha).ok()?;
-            let p_value = episode_predictive_p_value(nw, scan.statistic, episode_se);
+            let critical = episode_critical_value(nw, phi_sum, episode_alpha).ok()?;
+            let p_value = episode_predictive_p_value(nw, phi_sum, scan.statistic, episode_se);
             let significant = if episode_se > 0.0 { p_value <= episode_alpha } else { scan.statistic > critical };
             // Its level in torque units, recorded samples against the line through those
             // outside it; the encoder-step check as for a break (no slope to tell an encoder
@@ -390,15 +392,19 @@ pub(super) fn change_start_angle<A: Sample>(angle: &[A], s: &Scratch, j: usize) 
     }
 }
 
-/// Lag-1 autocorrelation of the window's noise model from which the episode scan does not run
-/// and the scan keeps its share of alpha. Whitening leaves a stretch's level shift at (1 - phi)
-/// of its height (with a spike at each end), and a stretch of a few samples is what strongly
-/// coloured noise makes by itself: under AR(1) 0.85 (benches/detection_quality.py, 1,500 faulty
-/// curves each) the episode scan found next to nothing, and the share it took cost the scan
-/// 2.0-2.6 points of recall (built-in 90.9 / 75.2 -> 88.3 / 72.7 % on 15-45 / 3-15 % changes,
-/// independent 61.1 / 21.8 -> 59.1 / 20.3 %); with this cut both are back, and the cells at
-/// AR(1) 0.5 and below keep the scan's gains (independent white 88.9 -> 90.4 %).
-const EPISODE_MAX_LAG1: f64 = 0.7;
+/// Lag-1 autocorrelation of the window's noise model from which the episode scan runs at
+/// [`EPISODE_STRONG_COLOUR_SHARE`] of its share of alpha, the rest going to the break scan.
+/// Any split of the break detector's alpha is a valid test; this one follows where the share is
+/// spent. On clean curves under AR(1) 0.85 (detection-quality clean sets, 1,500 curves a
+/// generator) the episode scan's p-value fell below 0.05 on 1.9-2.0 % of them (4.1-7.3 % under
+/// white noise): with the whitening's uncertainty averaged over, it spends about 0.4 of its share
+/// there. Halved there: on the size grid's AR(1) 0.85 / 0.9 cells (54 a generator, 2,000 curves)
+/// 39 -> 44 of the built-in simulator's cells in band and 42 -> 43 of the independent
+/// generator's, for 0.3 / 0.7 points of 15-45 % recall under AR(1) 0.85 (97.9 -> 97.6 %,
+/// 88.6 -> 87.9 %).
+const EPISODE_STRONG_COLOUR_LAG1: f64 = 0.7;
+/// See [`EPISODE_STRONG_COLOUR_LAG1`].
+const EPISODE_STRONG_COLOUR_SHARE: f64 = 0.5;
 
 /// What the episode scan found, in window samples.
 #[derive(Clone, Copy)]

@@ -108,8 +108,10 @@ struct Taken {
     k2: usize,
 }
 
-/// The episode scan of `x`, `y` (centred near zero, as for the break scan). `None` when no
-/// episode is admissible or the line leaves no residual variance.
+/// The episode scan of `x`, `y` (centred near zero, as for the break scan), whitened with the
+/// AR coefficients `phi` (empty for white noise; the stretches' indicators are whitened with
+/// them, module docs). `None` when no episode is admissible, the line leaves no residual
+/// variance, or `phi` has more than [`MAX_AR_ORDER`] coefficients.
 ///
 /// Up to [`MAX_EPISODES`] stretches, taken greedily: the stretch whose level shift reduces the
 /// residual sum of squares most, then, with it fitted, the next, disjoint from it (Gram-Schmidt

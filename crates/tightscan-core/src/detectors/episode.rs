@@ -204,6 +204,7 @@ fn greedy_episodes(x: &[f64], y: &[f64], phi: &[f64], transients: &[usize], furt
     // length + on_ones` and `gain^2 length + on_itself` (for white noise the length, exactly).
     let on_ones = head.iter().chain(tail).sum::<f64>();
     let on_itself = head.iter().map(|h| (h + gain).powi(2) - gain * gain).chain(tail.iter().map(|d| d * d)).sum::<f64>();
+    let with_itself_and_ones = |length: f64| (gain * gain * length + on_itself, gain * length + on_ones);
     let boundary = |k: usize, weights: &[f64]| weights.iter().zip(k..n).fold((0.0, 0.0), |(sx, se), (w, j)| (sx + w * x[j], se + w * (y[j] - a - b * x[j])));
     for i in 0..count {
         let ((px, pe), k) = (scratch[i], positions[i]);
@@ -293,9 +294,9 @@ fn greedy_episodes(x: &[f64], y: &[f64], phi: &[f64], transients: &[usize], furt
             for (c, (k2s, ends)) in chunks.zip(rest).enumerate() {
                 let (mut zz, mut norm, mut numerator) = ([0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK]);
                 for l in 0..EPISODE_CHUNK {
-                    let length = k2s[l] - k1_f;
-                    zz[l] = gain * gain * length + on_itself;
-                    let (nm, along) = project(zz[l], gain * length + on_ones, ends[l].0 + cx, ends[l].1 + ce);
+                    let ones;
+                    (zz[l], ones) = with_itself_and_ones(k2s[l] - k1_f);
+                    let (nm, along) = project(zz[l], ones, ends[l].0 + cx, ends[l].1 + ce);
                     norm[l] = nm;
                     numerator[l] = along * along;
                 }
@@ -309,9 +310,9 @@ fn greedy_episodes(x: &[f64], y: &[f64], phi: &[f64], transients: &[usize], furt
             }
             let (mut zz, mut norm, mut numerator) = ([0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK], [0.0; EPISODE_CHUNK]);
             for (l, (&k2_f, &(sx, se))) in rest_k2s.iter().zip(rest_ends).enumerate() {
-                let length = k2_f - k1_f;
-                zz[l] = gain * gain * length + on_itself;
-                let (nm, along) = project(zz[l], gain * length + on_ones, sx + cx, se + ce);
+                let ones;
+                (zz[l], ones) = with_itself_and_ones(k2_f - k1_f);
+                let (nm, along) = project(zz[l], ones, sx + cx, se + ce);
                 norm[l] = nm;
                 numerator[l] = along * along;
             }
@@ -320,9 +321,8 @@ fn greedy_episodes(x: &[f64], y: &[f64], phi: &[f64], transients: &[usize], furt
         }
         let Some((i, j)) = best else { break };
         let (k1, k2) = (positions[i], positions[j]);
-        let length = (k2 - k1) as f64;
-        let (s1, sxe) = (gain * length + on_ones, ends[j].0 + starts[i].0);
-        let (norm, along) = project(gain * gain * length + on_itself, s1, sxe, ends[j].1 + starts[i].1);
+        let ((zz, s1), sxe) = (with_itself_and_ones((k2 - k1) as f64), ends[j].0 + starts[i].0);
+        let (norm, along) = project(zz, s1, sxe, ends[j].1 + starts[i].1);
         let reduction = along * along / norm;
         taken[pass] = Taken { k1, k2 };
         w[pass] = (g00 * s1 + g01 * sxe, g01 * s1 + g11 * sxe);

@@ -98,6 +98,9 @@ pub(super) struct Scratch {
     /// ([`time_smoothed_angle`]).
     smooth_wx: Vec<f64>,
     smoothed: Vec<f64>,
+    /// Each CUSUM block's slope variance from the angle's quantisation error that the pooled
+    /// residuals miss (`cusum_row`).
+    angle_error: Vec<f64>,
     noise_t: Vec<f64>,
     noise_y: Vec<f64>,
     /// Weights of the samples in `x` (empty: all 1): the inverse of the noise sd where the noise

@@ -402,7 +402,8 @@ impl Detector {
         let block_sd = |b: usize| (noise_sd * noise_sd + s.angle_error[b]).sqrt();
 
         // Standardised block rates: under white noise slope_b has variance sigma^2 / Sxx_b,
-        // so z_b = (slope_b - reference) sqrt(Sxx_b) / sigma ~ N(0, 1) with no change.
+        // so z_b = (slope_b - reference) sqrt(Sxx_b) / sigma ~ N(0, 1) with no change (sigma
+        // the block's: the pooled scale and the block's angle error, `block_sd`).
         let z_of = |b: usize| (blocks.stats[b].slope() - reference_rate) * blocks.stats[b].sxx_c().sqrt() / block_sd(b);
         // Dispersion pre-test: sum of squared training z's against chi-square(B). Coloured noise
         // (filters, vibration) makes block slopes vary more than white noise would; the scale is
@@ -479,7 +480,7 @@ impl Detector {
 /// angle `xs` and its time average `smoothed` (`weights` empty for unit weights): what the
 /// average took out of the angle's quantisation error, in the weighted angle's units (see
 /// `cusum_row`, the CUSUM's scale). For an error independent from sample to sample, of variance
-/// q, it is q (1 - 1 / (2 half_width + 1)).
+/// q, it is q (1 - 1/9) with the nine-sample average (`TIME_SMOOTHING` either side).
 fn averaged_angle_leftover(xs: &[f64], smoothed: &[f64], weights: &[f64], range: std::ops::Range<usize>) -> f64 {
     let end = range.end.min(xs.len()).min(smoothed.len());
     let (sum, count) = (range.start..end).fold((0.0, 0usize), |(sum, count), i| {

@@ -372,10 +372,12 @@ fn grid(n: usize) -> (usize, impl Fn(usize) -> usize) {
     (count, move |i: usize| if dense { i } else { ((i * n) as f64 / EPISODE_GRID as f64).round() as usize })
 }
 
-/// (1 - alpha) quantiles of the episode scan's statistic under no change, i.i.d. Gaussian
-/// noise, samples evenly spaced: rows follow [`TABLE_N`](crate::detectors::breakpoint::TABLE_N),
-/// columns [`TABLE_ALPHA`]. Made by `simulate_episode_quantiles(n, 100_000, 20261126 + n)` for
-/// each n (the ignored test `regenerate_episode_table` prints it; about 2.5 min on two cores).
+/// (1 - alpha) quantiles of the episode scan's statistic under no change, samples evenly spaced,
+/// AR(1) noise of coefficient [`GLS_PHI`](crate::detectors::gls_breakpoint::GLS_PHI)`[j]` whitened with it (`[phi][n][alpha]`; phi 0 is
+/// i.i.d. Gaussian noise): rows follow [`TABLE_N`](crate::detectors::breakpoint::TABLE_N),
+/// columns [`TABLE_ALPHA`]. Made by `simulate_episode_quantiles(n, phi, 100_000, 20261126 + n)`
+/// (the ignored test `regenerate_episode_table` prints it, `PHI=` one value only; about 40 s a
+/// value of phi on two cores).
 pub static EPISODE_LR_QUANTILES: [[[f64; 8]; 8]; 8] = [
     [ // phi 0
         [6.060, 8.927, 10.840, 12.958, 15.292, 16.954, 18.646, 22.669], // n = 30
@@ -465,7 +467,7 @@ pub const FURTHER_STRETCHES_FROM: f64 = 0.1;
 
 /// (1 - alpha) quantiles of the one-stretch statistic (the first stretch's sup-LR alone) under no
 /// change, as [`EPISODE_LR_QUANTILES`]: where [`episode_scan`] looks further. Made by
-/// `simulate_one_stretch_quantiles(n, 100_000, 20261126 + n)` (the ignored test
+/// `simulate_one_stretch_quantiles(n, phi, 100_000, 20261126 + n)` (the ignored test
 /// `regenerate_episode_table` prints it).
 pub static ONE_STRETCH_LR_QUANTILES: [[[f64; 8]; 8]; 8] = [
     [ // phi 0

@@ -91,13 +91,13 @@ impl Detector {
         // shares, as an intermittent friction fault leaves (`detectors::episode`). Not where the
         // tool restarts: after a pause, or from a window that starts after a controller step.
         let episode_alpha = self.break_alpha * episode_fraction;
-        // The episode scan is a GLS regression as the break scan is: the GLS scan's sensitivity
-        // to the whitening's error. (Its own, measured as the GLS scan's was, is lower under
-        // strong colour, 0.38 against 0.54 at n 250 and phi 0.85; with it the independent
-        // generator's 500 Hz CST cells under AR(1) 0.85-0.9 claimed 1.5-2.0 % of clean curves,
-        // windows of a few hundred samples whose AR fit is less sure than its standard error
-        // says.)
-        let episode_se = s.noise.gain_log_se * scan_sensitivity(nw, lag1, gls_whitening_sensitivity);
+        // The episode scan is a GLS regression as the break scan is: the scan's spread of the
+        // whitening's error (`se`, the GLS scan's sensitivity). (Its own, measured as the GLS
+        // scan's was, is lower under strong colour, 0.38 against 0.54 at n 250 and phi 0.85;
+        // with it the independent generator's 500 Hz CST cells under AR(1) 0.85-0.9 claimed
+        // 1.5-2.0 % of clean curves, windows of a few hundred samples whose AR fit is less sure
+        // than its standard error says.)
+        let episode_se = se;
         let episode = if episode_fraction > 0.0 {
             s.transients.clear();
             if !s.starts_at_level {
